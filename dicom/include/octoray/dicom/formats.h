@@ -1,0 +1,50 @@
+#pragma once
+// Non-DICOM inputs behind the same VolumeSource interface: raw volumes described on the
+// command line, NRRD and MetaImage (header + raw or compressed data), NIfTI-1/2, and TIFF
+// stacks (a folder of single-page TIFFs, or one multi-page TIFF). And openVolume(), which
+// picks the reader from what a path is.
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "octoray/dicom/dicom_volume.h"
+#include "octoray/dicom/volume_source.h"
+
+namespace octoray {
+
+enum class SampleType { UInt8, Int8, UInt16, Int16, UInt32, Int32, Float32, Float64 };
+// Parses "uint8", "int16", "float32", ... (also NRRD/MetaImage spellings such as "short",
+// "MET_SHORT"); throws octoray::Error for anything else.
+SampleType parseSampleType(const std::string& name);
+std::size_t sampleBytes(SampleType type);
+
+struct RawOptions {
+  std::array<int64_t, 3> dims{0, 0, 0};
+  SampleType sampleType = SampleType::Int16;
+  bool bigEndian = false;
+  Vec3 spacingMm{1, 1, 1};
+  Vec3 originMm{0, 0, 0};
+  uint64_t headerBytes = 0;  // bytes to skip before the first sample
+};
+
+std::unique_ptr<VolumeSource> openRawVolume(const std::string& path, const RawOptions& options);
+std::unique_ptr<VolumeSource> openNrrd(const std::string& path);
+std::unique_ptr<VolumeSource> openMetaImage(const std::string& path);
+std::unique_ptr<VolumeSource> openNifti(const std::string& path);
+std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacingMm = {1, 1, 1});
+
+struct OpenOptions {
+  std::string series;          // DICOM: table index or SeriesInstanceUID; empty = default
+  dicom::StackOptions stack;   // DICOM: resampling choice
+  bool raw = false;            // treat the path as a raw volume described by `rawOptions`
+  RawOptions rawOptions;
+  Vec3 tiffSpacingMm{1, 1, 1};
+};
+
+// Opens any supported input: a DICOM folder, DICOMDIR or file; .nrrd/.nhdr; .mhd/.mha;
+// .nii/.nii.gz; .tif/.tiff or a folder of them; or a raw file when options.raw is set.
+std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOptions& options = {});
+
+}  // namespace octoray

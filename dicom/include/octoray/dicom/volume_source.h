@@ -1,0 +1,54 @@
+#pragma once
+// VolumeSource: the one interface every input format is read through. A source describes a
+// regular index grid in patient space (VolumeInfo) and yields its samples a slab of slices at
+// a time, in physical units (Hounsfield units for CT), so no caller ever needs the whole
+// volume in memory.
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "octoray/dicom/geometry.h"
+
+namespace octoray {
+
+struct VolumeInfo {
+  std::array<int64_t, 3> dims{0, 0, 0};  // samples along i (columns), j (rows), k (slices)
+  Mat4 patientFromIndex;                 // index -> patient (LPS, mm); may contain shear
+  std::string format;                    // "dicom", "raw", "nrrd", "metaimage", "nifti", "tiff"
+  std::string sourcePath;                // the file or folder the volume came from
+  std::string modality;                  // DICOM modality ("CT", "MR", ...) or empty
+  std::string description;               // series description or file name
+  std::string seriesUid;                 // DICOM SeriesInstanceUID or empty
+  std::string unit;                      // "HU" for CT after rescale, else "" (raw values)
+  bool integerValues = true;             // every sample is an integer (exactly in float)
+  double tiltDegrees = 0;                // angle between slice step and slice normal
+  bool resampled = false;                // slices were interpolated to a uniform spacing
+  std::vector<std::string> warnings;     // everything the reader had to decide or repair
+
+  int64_t sliceSamples() const { return dims[0] * dims[1]; }
+  int64_t sampleCount() const { return dims[0] * dims[1] * dims[2]; }
+  // Length of each index axis in patient space: the sample spacing in mm.
+  Vec3 spacingMm() const {
+    return {length(patientFromIndex.column(0)), length(patientFromIndex.column(1)),
+            length(patientFromIndex.column(2))};
+  }
+};
+
+class VolumeSource {
+ public:
+  virtual ~VolumeSource() = default;
+  virtual const VolumeInfo& info() const = 0;
+
+  // Fills `out` (exactly sliceSamples() * sliceCount floats, slice-major, i fastest) with
+  // slices [firstSlice, firstSlice + sliceCount). Thread-compatible, not thread-safe.
+  virtual void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) = 0;
+};
+
+// Checks a slab request against the volume; throws octoray::Error naming `path` if invalid.
+void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,
+                      std::size_t outSize);
+
+}  // namespace octoray

@@ -1,0 +1,32 @@
+#pragma once
+// Where tests find real data. ../shared sits beside the project root in CI and in
+// developers' checkouts; users who clone the project alone do not have it, so tests that
+// need it skip with a message (OCTORAY_REQUIRE_PATH) instead of failing.
+
+#include <filesystem>
+#include <string>
+
+namespace octoray::test {
+
+// ../shared (or $OCTORAY_SHARED when set).
+std::filesystem::path sharedDir();
+// ../shared/data/dicom/dcm_qa_ct/Philips
+std::filesystem::path philipsDir();
+// Debian python3-pydicom's test files folder.
+std::filesystem::path pydicomTestFiles();
+// A fresh, empty temporary folder unique to the running test; removed by the caller or left
+// for inspection under the build tree.
+std::filesystem::path freshTempDir(const std::string& name);
+// The built tool `name` (e.g. "octoray-import") in the build tree's bin folder.
+std::filesystem::path toolPath(const std::string& name);
+
+}  // namespace octoray::test
+
+// Skips the current test with a message when `path` does not exist.
+#define OCTORAY_REQUIRE_PATH(path)                                                         \
+  do {                                                                                     \
+    if (!std::filesystem::exists(path)) {                                                  \
+      GTEST_SKIP() << "skipped: " << (path).string()                                       \
+                   << " is absent (real test data lives in ../shared beside the project)"; \
+    }                                                                                      \
+  } while (0)
