@@ -1,0 +1,147 @@
+#include "octoray/dicom/dicom_decode.h"
+
+#include <gdcmImage.h>
+#include <gdcmImageReader.h>
+#include <gdcmPhotometricInterpretation.h>
+#include <gdcmPixelFormat.h>
+#include <gdcmTransferSyntax.h>
+
+#include <cstring>
+#include <filesystem>
+
+#include <fmt/format.h>
+
+#include "gdcm_support.h"
+#include "octoray/dicom/error.h"
+
+namespace octoray::dicom {
+namespace {
+
+template <typename T>
+T loadLittleEndian(const char* p) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));  // GDCM's decoded buffer is in host (little-endian) order
+  return v;
+}
+
+const char* syntaxName(const gdcm::TransferSyntax& ts) {
+  const char* s = gdcm::TransferSyntax::GetTSString(ts);
+  return s ? s : "unknown transfer syntax";
+}
+
+}  // namespace
+
+double storedValueFromBits(uint32_t raw, const PixelFormat& format) {
+  // PS3.5 §8.1.1: the value occupies bits [HighBit - BitsStored + 1, HighBit]; bits outside
+  // (overlays, garbage) are not part of it.
+  const int shift = format.highBit + 1 - format.bitsStored;
+  const uint64_t mask = (uint64_t{1} << format.bitsStored) - 1;
+  const uint64_t bits = (uint64_t{raw} >> shift) & mask;
+  if (format.pixelSigned && (bits >> (format.bitsStored - 1)) & 1u) {
+    return static_cast<double>(static_cast<int64_t>(bits) - static_cast<int64_t>(mask + 1));
+  }
+  return static_cast<double>(bits);
+}
+
+DecodedImage decodeDicomFile(const std::string& path) {
+  detail::quietGdcm();
+  if (!std::filesystem::is_regular_file(path)) throw Error(path, "no such file");
+  gdcm::ImageReader reader;
+  reader.SetFileName(path.c_str());
+  if (!reader.Read()) {
+    throw Error(path, "not a decodable DICOM image (GDCM could not parse the file, or it has "
+                      "no pixel data)");
+  }
+  const gdcm::Image& image = reader.GetImage();
+  const gdcm::PixelFormat& pf = image.GetPixelFormat();
+  const unsigned int* dims = image.GetDimensions();
+  const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
+
+  DecodedImage out;
+  PixelFormat& f = out.format;
+  f.columns = static_cast<int>(dims[0]);
+  f.rows = static_cast<int>(dims[1]);
+  f.frames = image.GetNumberOfDimensions() == 3 ? static_cast<int>(dims[2]) : 1;
+  f.samplesPerPixel = pf.GetSamplesPerPixel();
+  f.bitsAllocated = pf.GetBitsAllocated();
+  f.bitsStored = pf.GetBitsStored();
+  f.highBit = pf.GetHighBit();
+  f.pixelSigned = pf.GetPixelRepresentation() == 1;
+  f.floatPixels = pf.GetScalarType() == gdcm::PixelFormat::FLOAT32 ||
+                  pf.GetScalarType() == gdcm::PixelFormat::FLOAT64;
+  const char* photometric = gdcm::PhotometricInterpretation::GetPIString(
+      image.GetPhotometricInterpretation().GetType());
+  f.photometric = photometric ? photometric : "";
+  f.transferSyntaxUid = ts.GetString() ? ts.GetString() : "";
+
+  if (f.samplesPerPixel != 1) {
+    throw Error(path, fmt::format("colour image ({} samples per pixel, {}): not a scalar volume",
+                                  f.samplesPerPixel, f.photometric));
+  }
+  if (f.rows <= 0 || f.columns <= 0 || f.frames <= 0) {
+    throw Error(path, "image has zero rows, columns or frames");
+  }
+  const bool validBits = f.bitsAllocated == 8 || f.bitsAllocated == 16 || f.bitsAllocated == 32 ||
+                         (f.floatPixels && f.bitsAllocated == 64);
+  if (!validBits) {
+    throw Error(path, fmt::format("unsupported BitsAllocated {} (8, 16 or 32 expected)",
+                                  f.bitsAllocated));
+  }
+  if (!f.floatPixels && (f.bitsStored < 1 || f.bitsStored > f.bitsAllocated ||
+                         f.highBit < f.bitsStored - 1 || f.highBit >= f.bitsAllocated)) {
+    throw Error(path, fmt::format("inconsistent BitsStored {} / HighBit {} for BitsAllocated {}",
+                                  f.bitsStored, f.highBit, f.bitsAllocated));
+  }
+
+  // Padding attributes live in the data set, not in GDCM's image model.
+  const gdcm::File& file = reader.GetFile();
+  const gdcm::DataSet& ds = file.GetDataSet();
+  if (auto pad = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0120), f.pixelSigned)) {
+    f.hasPadding = true;
+    f.paddingValue = *pad;
+    f.paddingRangeLimit = *pad;
+    if (auto limit = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0121), f.pixelSigned)) {
+      f.paddingRangeLimit = *limit;
+    }
+  }
+
+  const std::size_t samples = out.frameSamples() * static_cast<std::size_t>(f.frames);
+  const std::size_t bytesPerSample = static_cast<std::size_t>(f.bitsAllocated) / 8;
+  const std::size_t expected = samples * bytesPerSample;
+  const unsigned long length = image.GetBufferLength();
+  if (length < expected) {
+    throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
+                                  "at {} bits need {}", length, f.rows, f.columns, f.frames,
+                                  f.bitsAllocated, expected));
+  }
+  std::vector<char> buffer(length);
+  if (!image.GetBuffer(buffer.data())) {
+    throw Error(path, fmt::format("pixel data could not be decoded ({}, {})", syntaxName(ts),
+                                  f.transferSyntaxUid));
+  }
+
+  out.stored.resize(samples);
+  const char* p = buffer.data();
+  if (f.floatPixels) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out.stored[i] = f.bitsAllocated == 32
+                          ? static_cast<double>(loadLittleEndian<float>(p + 4 * i))
+                          : loadLittleEndian<double>(p + 8 * i);
+    }
+  } else if (f.bitsAllocated == 8) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out.stored[i] = storedValueFromBits(static_cast<unsigned char>(p[i]), f);
+    }
+  } else if (f.bitsAllocated == 16) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out.stored[i] = storedValueFromBits(loadLittleEndian<uint16_t>(p + 2 * i), f);
+    }
+  } else {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out.stored[i] = storedValueFromBits(loadLittleEndian<uint32_t>(p + 4 * i), f);
+    }
+  }
+  return out;
+}
+
+}  // namespace octoray::dicom

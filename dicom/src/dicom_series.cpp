@@ -1,0 +1,486 @@
+#include "octoray/dicom/dicom_series.h"
+
+#include <gdcmReader.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <mutex>
+#include <set>
+#include <tbb/parallel_for.h>
+
+#include <fmt/format.h>
+
+#include "gdcm_support.h"
+#include "octoray/dicom/error.h"
+
+namespace octoray::dicom {
+namespace fs = std::filesystem;
+using detail::numberValue;
+using detail::numberValues;
+using detail::stringValue;
+using detail::stringValues;
+
+const char* toString(SeriesKind kind) {
+  switch (kind) {
+    case SeriesKind::Volume: return "volume";
+    case SeriesKind::Localizer: return "localizer";
+    case SeriesKind::SecondaryCapture: return "secondary-capture";
+    case SeriesKind::Derived: return "derived";
+    case SeriesKind::NoGeometry: return "no-geometry";
+  }
+  return "unknown";
+}
+
+namespace {
+
+const gdcm::Tag kPixelData(0x7fe0, 0x0010);
+const gdcm::Tag kSopClass(0x0008, 0x0016);
+const gdcm::Tag kImageType(0x0008, 0x0008);
+const gdcm::Tag kModality(0x0008, 0x0060);
+const gdcm::Tag kSeriesDescription(0x0008, 0x103e);
+const gdcm::Tag kSeriesUid(0x0020, 0x000e);
+const gdcm::Tag kSeriesNumber(0x0020, 0x0011);
+const gdcm::Tag kInstanceNumber(0x0020, 0x0013);
+const gdcm::Tag kPosition(0x0020, 0x0032);
+const gdcm::Tag kOrientation(0x0020, 0x0037);
+const gdcm::Tag kPixelSpacing(0x0028, 0x0030);
+const gdcm::Tag kRows(0x0028, 0x0010);
+const gdcm::Tag kColumns(0x0028, 0x0011);
+const gdcm::Tag kFrames(0x0028, 0x0008);
+const gdcm::Tag kBitsAllocated(0x0028, 0x0100);
+const gdcm::Tag kPhotometric(0x0028, 0x0004);
+const gdcm::Tag kSamplesPerPixel(0x0028, 0x0002);
+const gdcm::Tag kRescaleIntercept(0x0028, 0x1052);
+const gdcm::Tag kRescaleSlope(0x0028, 0x1053);
+const gdcm::Tag kSharedGroups(0x5200, 0x9229);
+const gdcm::Tag kPerFrameGroups(0x5200, 0x9230);
+const gdcm::Tag kPlanePositionSeq(0x0020, 0x9113);
+const gdcm::Tag kPlaneOrientationSeq(0x0020, 0x9116);
+const gdcm::Tag kPixelMeasuresSeq(0x0028, 0x9110);
+const gdcm::Tag kPixelValueTransformSeq(0x0028, 0x9145);
+const gdcm::Tag kFrameTypeSeq(0x0018, 0x9226);  // CT Image Frame Type Sequence
+const gdcm::Tag kFrameType(0x0008, 0x9007);
+const gdcm::Tag kDirectoryRecords(0x0004, 0x1220);
+const gdcm::Tag kReferencedFileId(0x0004, 0x1500);
+const gdcm::Tag kMediaStorageSopClass(0x0002, 0x0002);
+const char* kDirectorySopClass = "1.2.840.10008.1.3.10";
+
+// Everything the scanner needs from one file's header.
+struct FileHeader {
+  std::string path;
+  std::string sopClass, modality, description, seriesUid, photometric;
+  std::vector<std::string> imageType;
+  int seriesNumber = 0;
+  int rows = 0, columns = 0, bitsAllocated = 0, samplesPerPixel = 1;
+  std::optional<std::vector<double>> orientation, pixelSpacing;
+  std::vector<FrameRef> frames;
+  bool multiFrame = false;
+};
+
+bool isSecondaryCapture(const std::string& sopClass) {
+  return sopClass.rfind("1.2.840.10008.5.1.4.1.1.7", 0) == 0;
+}
+
+// Functional-group lookup: the per-frame item wins over the shared item (PS3.3 C.7.6.16).
+std::optional<gdcm::DataSet> groupMacro(const std::optional<gdcm::DataSet>& perFrame,
+                                        const std::optional<gdcm::DataSet>& shared,
+                                        const gdcm::Tag& macro) {
+  if (perFrame) {
+    if (auto item = detail::firstItem(*perFrame, macro)) return item;
+  }
+  if (shared) return detail::firstItem(*shared, macro);
+  return std::nullopt;
+}
+
+void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) {
+  const auto shared = detail::firstItem(ds, kSharedGroups);
+  const auto perFrame = detail::sequenceItems(ds, kPerFrameGroups);
+  std::optional<gdcm::DataSet> noItem;
+  for (int f = 0; f < frameCount; ++f) {
+    std::optional<gdcm::DataSet> mine;
+    if (static_cast<std::size_t>(f) < perFrame.size()) mine = perFrame[static_cast<std::size_t>(f)];
+    FrameRef frame;
+    frame.path = h.path;
+    frame.frameIndex = f;
+    frame.instanceNumber = f + 1;
+    if (auto pos = groupMacro(mine, shared, kPlanePositionSeq)) {
+      if (auto v = numberValues(*pos, kPosition); v && v->size() == 3) {
+        frame.positionMm = {(*v)[0], (*v)[1], (*v)[2]};
+      } else {
+        h.orientation.reset();  // a frame without a position: the object has no usable geometry
+      }
+    } else {
+      h.orientation.reset();
+    }
+    if (f == 0) {
+      if (auto orient = groupMacro(mine, shared, kPlaneOrientationSeq)) {
+        h.orientation = numberValues(*orient, kOrientation);
+      }
+      if (auto measures = groupMacro(mine, shared, kPixelMeasuresSeq)) {
+        h.pixelSpacing = numberValues(*measures, kPixelSpacing);
+      }
+      if (auto frameType = groupMacro(mine, shared, kFrameTypeSeq)) {
+        auto type = stringValues(*frameType, kFrameType);
+        if (!type.empty()) h.imageType = type;
+      }
+    }
+    if (auto transform = groupMacro(mine, shared, kPixelValueTransformSeq)) {
+      frame.rescaleSlope = numberValue(*transform, kRescaleSlope).value_or(1.0);
+      frame.rescaleIntercept = numberValue(*transform, kRescaleIntercept).value_or(0.0);
+    }
+    h.frames.push_back(frame);
+  }
+}
+
+// Native (uncompressed) pixel data must hold every frame; encapsulated data is checked when
+// it is decoded.
+void checkNativePixelLength(const gdcm::File& file, const gdcm::DataSet& ds, const FileHeader& h,
+                            int frameCount) {
+  const gdcm::ByteValue* bv = ds.GetDataElement(kPixelData).GetByteValue();
+  if (!bv || file.GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) return;
+  const uint64_t bits = static_cast<uint64_t>(h.rows) * static_cast<uint64_t>(h.columns) *
+                        static_cast<uint64_t>(frameCount) *
+                        static_cast<uint64_t>(std::max(h.samplesPerPixel, 1)) *
+                        static_cast<uint64_t>(h.bitsAllocated);
+  const uint64_t needed = (bits + 7) / 8;
+  if (bv->GetLength() < needed) {
+    throw Error(h.path, fmt::format("pixel data is {} bytes, {} rows x {} columns x {} frames "
+                                    "need {} (file truncated or wrong element length)",
+                                    bv->GetLength(), h.rows, h.columns, frameCount, needed));
+  }
+}
+
+// Reads one file's attributes (pixel data parsed, not decoded). Throws Error with the reason
+// to skip it.
+FileHeader readHeader(const std::string& path) {
+  // The whole file is parsed (pixel data included, not decoded) so that a truncated file is
+  // caught here, skipped with its reason, and the rest of its series still loads.
+  gdcm::Reader reader;
+  reader.SetFileName(path.c_str());
+  if (!reader.Read()) {
+    throw Error(path, "not a DICOM file, or truncated (GDCM could not parse it)");
+  }
+  const gdcm::File& file = reader.GetFile();
+  const gdcm::DataSet& ds = file.GetDataSet();
+  FileHeader h;
+  h.path = path;
+  h.sopClass = stringValue(ds, kSopClass);
+  if (h.sopClass.empty()) h.sopClass = stringValue(file.GetHeader(), kMediaStorageSopClass);
+  if (h.sopClass == kDirectorySopClass) throw Error(path, "DICOM directory (DICOMDIR), not an image");
+
+  auto rows = detail::unsignedShort(file, ds, kRows);
+  auto columns = detail::unsignedShort(file, ds, kColumns);
+  if (!rows || !columns) {
+    throw Error(path, fmt::format("not an image (SOP class {} has no Rows/Columns)",
+                                  h.sopClass.empty() ? "unknown" : h.sopClass));
+  }
+  h.rows = *rows;
+  h.columns = *columns;
+  h.bitsAllocated = detail::unsignedShort(file, ds, kBitsAllocated).value_or(0);
+  if (!ds.FindDataElement(kPixelData)) throw Error(path, "image without pixel data");
+  h.samplesPerPixel = detail::unsignedShort(file, ds, kSamplesPerPixel).value_or(1);
+  h.photometric = stringValue(ds, kPhotometric);
+  h.modality = stringValue(ds, kModality);
+  h.description = stringValue(ds, kSeriesDescription);
+  h.seriesUid = stringValue(ds, kSeriesUid);
+  h.imageType = stringValues(ds, kImageType);
+  h.seriesNumber = static_cast<int>(numberValue(ds, kSeriesNumber).value_or(0));
+  if (h.seriesUid.empty()) h.seriesUid = "(no SeriesInstanceUID)";
+
+  const int frameCount = static_cast<int>(numberValue(ds, kFrames).value_or(1));
+  if (frameCount < 1) throw Error(path, fmt::format("invalid NumberOfFrames {}", frameCount));
+  if (ds.FindDataElement(kPerFrameGroups) || ds.FindDataElement(kSharedGroups)) {
+    h.multiFrame = true;
+    readEnhancedFrames(ds, h, frameCount);
+  } else {
+    h.orientation = numberValues(ds, kOrientation);
+    h.pixelSpacing = numberValues(ds, kPixelSpacing);
+    const auto position = numberValues(ds, kPosition);
+    const double slope = numberValue(ds, kRescaleSlope).value_or(1.0);
+    const double intercept = numberValue(ds, kRescaleIntercept).value_or(0.0);
+    const int instance = static_cast<int>(numberValue(ds, kInstanceNumber).value_or(0));
+    if (!position || position->size() != 3) h.orientation.reset();
+    // A legacy multi-frame image has one position for all frames: it is not a stack.
+    if (frameCount > 1) h.orientation.reset();
+    for (int f = 0; f < frameCount; ++f) {
+      FrameRef frame;
+      frame.path = path;
+      frame.frameIndex = f;
+      frame.instanceNumber = instance;
+      if (position && position->size() == 3) {
+        frame.positionMm = {(*position)[0], (*position)[1], (*position)[2]};
+      }
+      frame.rescaleSlope = slope;
+      frame.rescaleIntercept = intercept;
+      h.frames.push_back(frame);
+    }
+  }
+  const std::string ts = file.GetHeader().GetDataSetTransferSyntax().GetString()
+                             ? file.GetHeader().GetDataSetTransferSyntax().GetString()
+                             : "";
+  for (auto& frame : h.frames) frame.transferSyntaxUid = ts;
+  checkNativePixelLength(file, ds, h, frameCount);
+  if (h.orientation && h.orientation->size() != 6) h.orientation.reset();
+  if (h.pixelSpacing && h.pixelSpacing->size() != 2) h.pixelSpacing.reset();
+  return h;
+}
+
+// Series are split where one UID mixes orientations, sizes or pixel spacings.
+std::string groupKey(const FileHeader& h) {
+  std::string key = h.seriesUid + fmt::format("|{}x{}", h.rows, h.columns);
+  if (h.orientation) {
+    for (double v : *h.orientation) key += fmt::format("|{:.4f}", v);
+  } else {
+    key += "|no-orientation";
+  }
+  if (h.pixelSpacing) key += fmt::format("|{:.5f}|{:.5f}", (*h.pixelSpacing)[0], (*h.pixelSpacing)[1]);
+  return key;
+}
+
+void classify(DicomSeries& s) {
+  const auto has = [&](const char* word) {
+    return std::find(s.imageType.begin(), s.imageType.end(), word) != s.imageType.end();
+  };
+  if (isSecondaryCapture(s.sopClassUid)) {
+    s.kind = SeriesKind::SecondaryCapture;
+    s.kindReason = "Secondary Capture SOP class " + s.sopClassUid;
+  } else if (has("LOCALIZER")) {
+    s.kind = SeriesKind::Localizer;
+    s.kindReason = "ImageType contains LOCALIZER";
+  } else if (!s.hasGeometry) {
+    s.kind = SeriesKind::NoGeometry;
+    s.kindReason = "no ImagePositionPatient/ImageOrientationPatient/PixelSpacing per frame";
+  } else if (!s.imageType.empty() && s.imageType[0] == "DERIVED") {
+    s.kind = SeriesKind::Derived;
+    s.kindReason = "ImageType DERIVED";
+  } else {
+    s.kind = SeriesKind::Volume;
+    s.kindReason = s.imageType.empty() ? "image stack" : "ImageType " + s.imageType[0];
+  }
+}
+
+std::string lowercase(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+// Resolves a DICOMDIR ReferencedFileID (components joined by '\') under `root`; on
+// case-sensitive file systems it also accepts a different letter case.
+std::optional<fs::path> resolveReferencedFile(const fs::path& root,
+                                              const std::vector<std::string>& components) {
+  fs::path current = root;
+  for (const auto& part : components) {
+    fs::path exact = current / part;
+    std::error_code ec;
+    if (fs::exists(exact, ec)) {
+      current = exact;
+      continue;
+    }
+    bool found = false;
+    if (fs::is_directory(current, ec)) {
+      for (const auto& entry : fs::directory_iterator(current, ec)) {
+        if (lowercase(entry.path().filename().string()) == lowercase(part)) {
+          current = entry.path();
+          found = true;
+          break;
+        }
+      }
+    }
+    if (!found) return std::nullopt;
+  }
+  return current;
+}
+
+// Collects the files a DICOMDIR lists, following nested directory files (Philips DIRFILEs);
+// records a warning for every listed file that does not exist.
+void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::path>& visited,
+                   std::set<std::string>& listed, DicomScan& scan) {
+  if (!visited.insert(fs::weakly_canonical(dirFile)).second) return;
+  gdcm::Reader reader;
+  reader.SetFileName(dirFile.c_str());
+  if (!reader.Read()) {
+    scan.warnings.push_back(dirFile.string() + ": DICOMDIR could not be parsed; files are found by "
+                            "searching the folder instead");
+    return;
+  }
+  for (const gdcm::DataSet& record :
+       detail::sequenceItems(reader.GetFile().GetDataSet(), kDirectoryRecords)) {
+    const auto components = stringValues(record, kReferencedFileId);
+    if (components.empty()) continue;
+    std::string joined;
+    for (const auto& c : components) joined += (joined.empty() ? "" : "/") + c;
+    const auto file = resolveReferencedFile(root, components);
+    if (!file) {
+      scan.warnings.push_back(fmt::format("{}: lists {} which does not exist", dirFile.string(),
+                                          (root / joined).string()));
+      continue;
+    }
+    gdcm::Reader probe;
+    probe.SetFileName(file->c_str());
+    const bool isDirectory =
+        probe.ReadUpToTag(gdcm::Tag(0x0008, 0x0005), std::set<gdcm::Tag>{}) &&
+        stringValue(probe.GetFile().GetHeader(), kMediaStorageSopClass) == kDirectorySopClass;
+    if (isDirectory) {
+      readDirectory(*file, root, visited, listed, scan);
+    } else {
+      listed.insert(fs::weakly_canonical(*file).string());
+    }
+  }
+}
+
+bool isDicomDirName(const fs::path& p) { return lowercase(p.filename().string()) == "dicomdir"; }
+
+}  // namespace
+
+DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
+  detail::quietGdcm();
+  DicomScan scan;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error(path.string(), "no such file or folder");
+
+  std::vector<std::string> files;
+  std::set<std::string> listed;
+  std::set<fs::path> visited;
+  bool fromDirectory = false;
+  if (fs::is_directory(path, ec)) {
+    fs::recursive_directory_iterator it(path, fs::directory_options::skip_permission_denied, ec);
+    if (ec) throw Error(path.string(), "folder cannot be read: " + ec.message());
+    for (; it != fs::recursive_directory_iterator(); it.increment(ec)) {
+      if (ec) break;
+      if (!it->is_regular_file(ec)) continue;
+      if (isDicomDirName(it->path())) {
+        readDirectory(it->path(), it->path().parent_path(), visited, listed, scan);
+        fromDirectory = true;
+      }
+      files.push_back(it->path().string());
+    }
+    std::sort(files.begin(), files.end());
+  } else if (isDicomDirName(path)) {
+    readDirectory(path, path.parent_path(), visited, listed, scan);
+    fromDirectory = true;
+    files.assign(listed.begin(), listed.end());
+  } else {
+    files.push_back(path.string());
+  }
+  (void)fromDirectory;
+
+  // Headers are read in parallel; results keep the sorted file order.
+  std::vector<std::optional<FileHeader>> headers(files.size());
+  std::vector<std::string> failures(files.size());
+  std::mutex progressMutex;
+  std::size_t done = 0;
+  tbb::parallel_for(std::size_t{0}, files.size(), [&](std::size_t i) {
+    try {
+      headers[i] = readHeader(files[i]);
+    } catch (const Error& e) {
+      failures[i] = e.reason();
+    } catch (const std::exception& e) {
+      failures[i] = std::string("unreadable: ") + e.what();
+    }
+    if (options.progress) {
+      std::lock_guard lock(progressMutex);
+      options.progress(++done, files.size());
+    }
+  });
+  scan.filesExamined = files.size();
+
+  std::map<std::string, DicomSeries> groups;
+  std::vector<std::string> order;
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    if (!headers[i]) {
+      scan.skipped.push_back({files[i], failures[i]});
+      continue;
+    }
+    FileHeader& h = *headers[i];
+    const std::string key = groupKey(h);
+    auto [it, inserted] = groups.try_emplace(key);
+    DicomSeries& s = it->second;
+    if (inserted) {
+      order.push_back(key);
+      s.seriesUid = h.seriesUid;
+      s.seriesNumber = h.seriesNumber;
+      s.modality = h.modality;
+      s.description = h.description;
+      s.sopClassUid = h.sopClass;
+      s.imageType = h.imageType;
+      s.multiFrame = h.multiFrame;
+      s.rows = h.rows;
+      s.columns = h.columns;
+      s.bitsAllocated = h.bitsAllocated;
+      s.photometric = h.photometric;
+      s.hasGeometry = h.orientation.has_value() && h.pixelSpacing.has_value();
+      if (s.hasGeometry) {
+        const auto& o = *h.orientation;
+        s.rowDirection = {o[0], o[1], o[2]};
+        s.columnDirection = {o[3], o[4], o[5]};
+        s.rowSpacingMm = (*h.pixelSpacing)[0];
+        s.columnSpacingMm = (*h.pixelSpacing)[1];
+      }
+    }
+    s.multiFrame = s.multiFrame || h.multiFrame;
+    for (auto& frame : h.frames) s.frames.push_back(std::move(frame));
+  }
+
+  // Number the parts of a UID that had to be split, so the table tells them apart.
+  std::map<std::string, int> partsPerUid;
+  for (const auto& key : order) ++partsPerUid[groups[key].seriesUid];
+  std::map<std::string, int> partSeen;
+  for (const auto& key : order) {
+    DicomSeries& s = groups[key];
+    classify(s);
+    if (partsPerUid[s.seriesUid] > 1) {
+      s.kindReason += fmt::format("; part {} of {} of a series mixing orientations or sizes",
+                                  ++partSeen[s.seriesUid], partsPerUid[s.seriesUid]);
+    }
+    scan.series.push_back(std::move(s));
+  }
+  std::stable_sort(scan.series.begin(), scan.series.end(),
+                   [](const DicomSeries& a, const DicomSeries& b) {
+                     return std::tie(a.seriesNumber, a.seriesUid) <
+                            std::tie(b.seriesNumber, b.seriesUid);
+                   });
+  return scan;
+}
+
+std::size_t defaultSeriesIndex(const DicomScan& scan, const std::string& path) {
+  std::optional<std::size_t> best;
+  const auto rank = [](const DicomSeries& s) {
+    // Prefer original volumes, then derived stacks; then the most frames.
+    const int kindRank = s.kind == SeriesKind::Volume ? 2 : (s.kind == SeriesKind::Derived ? 1 : 0);
+    return std::pair{kindRank, s.frames.size()};
+  };
+  for (std::size_t i = 0; i < scan.series.size(); ++i) {
+    const auto& s = scan.series[i];
+    if (s.kind != SeriesKind::Volume && s.kind != SeriesKind::Derived) continue;
+    if (!best || rank(s) > rank(scan.series[*best])) best = i;
+  }
+  if (!best) {
+    throw Error(path, fmt::format("no volumetric image series found ({} series, {} files skipped)",
+                                  scan.series.size(), scan.skipped.size()));
+  }
+  return *best;
+}
+
+std::size_t findSeries(const DicomScan& scan, const std::string& indexOrUid,
+                       const std::string& path) {
+  const bool numeric = !indexOrUid.empty() &&
+                       std::all_of(indexOrUid.begin(), indexOrUid.end(), ::isdigit) &&
+                       indexOrUid.size() < 6;
+  if (numeric) {
+    const std::size_t index = std::stoul(indexOrUid);
+    if (index < scan.series.size()) return index;
+    throw Error(path, fmt::format("series index {} out of range (0..{})", index,
+                                  scan.series.empty() ? 0 : scan.series.size() - 1));
+  }
+  std::optional<std::size_t> found;
+  for (std::size_t i = 0; i < scan.series.size(); ++i) {
+    if (scan.series[i].seriesUid != indexOrUid) continue;
+    // Of a split UID, take its largest part.
+    if (!found || scan.series[i].frames.size() > scan.series[*found].frames.size()) found = i;
+  }
+  if (!found) throw Error(path, "no series with SeriesInstanceUID " + indexOrUid);
+  return *found;
+}
+
+}  // namespace octoray::dicom

@@ -1,0 +1,32 @@
+#pragma once
+// Small helpers over GDCM's data set API shared by the scanner and the decoder (internal).
+
+#include <gdcmDataSet.h>
+#include <gdcmFile.h>
+#include <gdcmTag.h>
+
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace octoray::dicom::detail {
+
+// Silences GDCM's own stderr chatter once per process: we report problems ourselves.
+void quietGdcm();
+
+// The value of a string-VR element with trailing spaces and NULs removed ("" if absent).
+std::string stringValue(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+// Backslash-separated values of a string-VR element.
+std::vector<std::string> stringValues(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+// Decimal/integer string values (DS, IS) parsed to doubles; nullopt if absent or malformed.
+std::optional<std::vector<double>> numberValues(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+std::optional<double> numberValue(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+// A US (or US/SS) element read through the file's byte order; nullopt if absent/short.
+std::optional<int> unsignedShort(const gdcm::File& file, const gdcm::DataSet& ds,
+                                 const gdcm::Tag& tag, bool asSigned = false);
+// The items of sequence `tag` (copies: GDCM may parse an undecoded sequence on the fly).
+std::vector<gdcm::DataSet> sequenceItems(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+// The first item of sequence `tag`, or nullopt when absent or empty.
+std::optional<gdcm::DataSet> firstItem(const gdcm::DataSet& ds, const gdcm::Tag& tag);
+
+}  // namespace octoray::dicom::detail

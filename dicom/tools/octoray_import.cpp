@@ -1,0 +1,376 @@
+// octoray-import: DICOM folders, DICOMDIRs and other volume files in, resolved volumes out.
+//   --list PATH               the series table
+//   --inspect PATH            resolved geometry, value range and every warning of one volume
+//   --export OUT.nii[.gz] PATH  the resolved volume as NIfTI (shear kept in the sform)
+// --json output follows docs/import-json.md (schema version 1).
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <iostream>
+#include <limits>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "cli_support.h"
+#include "octoray/dicom/dicom_series.h"
+#include "octoray/dicom/dicom_volume.h"
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/dicom/nifti_export.h"
+
+namespace {
+
+using nlohmann::json;
+using namespace octoray;
+
+constexpr int kJsonSchemaVersion = 1;
+
+struct Arguments {
+  std::string path;
+  bool list = false;
+  bool inspect = false;
+  std::string exportPath;
+  bool json = false;
+  std::string series;
+  double sliceSpacingMm = 0;
+  std::string rawDims, rawType = "int16", rawSpacing, tiffSpacing;
+  bool rawBigEndian = false;
+  uint64_t rawHeaderBytes = 0;
+};
+
+std::vector<double> parseList(const std::string& text, char separator, std::size_t count,
+                              const char* what) {
+  std::vector<double> values;
+  std::size_t begin = 0;
+  while (begin <= text.size()) {
+    const std::size_t end = text.find(separator, begin);
+    const std::string part = text.substr(begin, end == std::string::npos ? end : end - begin);
+    char* stop = nullptr;
+    const double v = std::strtod(part.c_str(), &stop);
+    if (part.empty() || stop != part.c_str() + part.size() || !std::isfinite(v) || v <= 0) {
+      throw Error("", fmt::format("{} '{}': expected {} positive numbers separated by '{}'", what,
+                                  text, count, separator));
+    }
+    values.push_back(v);
+    if (end == std::string::npos) break;
+    begin = end + 1;
+  }
+  if (values.size() != count) {
+    throw Error("", fmt::format("{} '{}': expected {} values", what, text, count));
+  }
+  return values;
+}
+
+OpenOptions openOptions(const Arguments& a) {
+  OpenOptions o;
+  o.series = a.series;
+  o.stack.sliceSpacingMm = a.sliceSpacingMm;
+  if (!a.rawDims.empty()) {
+    o.raw = true;
+    const auto dims = parseList(a.rawDims, 'x', 3, "--raw-dims");
+    for (int i = 0; i < 3; ++i) {
+      if (dims[i] != std::floor(dims[i])) throw Error("", "--raw-dims must be whole numbers");
+      o.rawOptions.dims[i] = static_cast<int64_t>(dims[i]);
+    }
+    o.rawOptions.sampleType = parseSampleType(a.rawType);
+    o.rawOptions.bigEndian = a.rawBigEndian;
+    o.rawOptions.headerBytes = a.rawHeaderBytes;
+    if (!a.rawSpacing.empty()) {
+      const auto s = parseList(a.rawSpacing, ',', 3, "--raw-spacing");
+      o.rawOptions.spacingMm = {s[0], s[1], s[2]};
+    }
+  }
+  if (!a.tiffSpacing.empty()) {
+    const auto s = parseList(a.tiffSpacing, ',', 3, "--tiff-spacing");
+    o.tiffSpacingMm = {s[0], s[1], s[2]};
+  }
+  return o;
+}
+
+json seriesJson(const dicom::DicomSeries& s, std::size_t index, bool isDefault) {
+  json j = {{"index", index},
+            {"seriesUid", s.seriesUid},
+            {"seriesNumber", s.seriesNumber},
+            {"modality", s.modality},
+            {"description", s.description},
+            {"kind", dicom::toString(s.kind)},
+            {"kindReason", s.kindReason},
+            {"columns", s.columns},
+            {"rows", s.rows},
+            {"images", s.frames.size()},
+            {"multiFrame", s.multiFrame},
+            {"default", isDefault}};
+  if (s.hasGeometry) {
+    j["pixelSpacingMm"] = {s.columnSpacingMm, s.rowSpacingMm};
+    try {
+      const dicom::StackGeometry g = dicom::resolveStack(s);
+      j["slices"] = g.outputSlices;
+      j["sliceSpacingMm"] = g.outputSpacingMm;
+      j["tiltDegrees"] = g.tiltDegrees;
+      j["uniformSpacing"] = g.uniform;
+    } catch (const Error& e) {
+      j["geometryError"] = e.what();
+    }
+  }
+  return j;
+}
+
+json listJson(const std::string& path, const dicom::DicomScan& scan) {
+  std::optional<std::size_t> chosen;
+  try {
+    chosen = dicom::defaultSeriesIndex(scan, path);
+  } catch (const Error&) {
+  }
+  json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion}, {"path", path},
+            {"filesExamined", scan.filesExamined}};
+  j["series"] = json::array();
+  for (std::size_t i = 0; i < scan.series.size(); ++i) {
+    j["series"].push_back(seriesJson(scan.series[i], i, chosen == i));
+  }
+  j["skipped"] = json::array();
+  for (const auto& s : scan.skipped) j["skipped"].push_back({{"path", s.path}, {"reason", s.reason}});
+  j["warnings"] = scan.warnings;
+  return j;
+}
+
+void printList(const json& j) {
+  fmt::print("{} files examined in {}\n\n", j["filesExamined"].get<std::size_t>(),
+             j["path"].get<std::string>());
+  fmt::print("{:>3} {:>6} {:<4} {:<18} {:>9} {:>6} {:>13} {:>8}  {}\n", "#", "series", "mod",
+             "kind", "size", "images", "spacing mm", "tilt", "description");
+  for (const auto& s : j["series"]) {
+    std::string spacing = "-", tilt = "-";
+    if (s.contains("pixelSpacingMm")) {
+      spacing = fmt::format("{:.3f}", s["pixelSpacingMm"][0].get<double>());
+      if (s.contains("sliceSpacingMm")) {
+        spacing += fmt::format("/{:.2f}", s["sliceSpacingMm"].get<double>());
+        tilt = fmt::format("{:.2f}", s["tiltDegrees"].get<double>());
+      }
+    }
+    fmt::print("{:>3} {:>6} {:<4} {:<18} {:>9} {:>6} {:>13} {:>8}  {}{}\n",
+               s["index"].get<std::size_t>(), s["seriesNumber"].get<int>(),
+               s["modality"].get<std::string>(), s["kind"].get<std::string>(),
+               fmt::format("{}x{}", s["columns"].get<int>(), s["rows"].get<int>()),
+               s["images"].get<std::size_t>(), spacing, tilt, s["description"].get<std::string>(),
+               s["default"].get<bool>() ? "  [default]" : "");
+  }
+  if (!j["skipped"].empty()) {
+    fmt::print("\n{} file(s) skipped:\n", j["skipped"].size());
+    for (const auto& s : j["skipped"]) {
+      fmt::print("  {}: {}\n", s["path"].get<std::string>(), s["reason"].get<std::string>());
+    }
+  }
+  for (const auto& w : j["warnings"]) fmt::print("warning: {}\n", w.get<std::string>());
+}
+
+bool isDicomInput(const std::string& path, const Arguments& a) {
+  if (!a.rawDims.empty()) return false;
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) {
+    for (const auto& e : fs::recursive_directory_iterator(path, ec)) {
+      const auto ext = e.path().extension().string();
+      if (ext == ".tif" || ext == ".tiff" || ext == ".TIF" || ext == ".TIFF") return false;
+    }
+    return true;
+  }
+  const std::string name = fs::path(path).filename().string();
+  for (const char* ext : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".tif", ".tiff"}) {
+    const std::string e = ext;
+    if (name.size() >= e.size() && name.compare(name.size() - e.size(), e.size(), e) == 0) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// Opens the volume named by the arguments; for DICOM also returns the scan for reporting.
+std::unique_ptr<VolumeSource> openInput(const Arguments& a, std::optional<dicom::DicomScan>& scan,
+                                        std::optional<std::size_t>& seriesIndex) {
+  if (!isDicomInput(a.path, a)) return openVolume(a.path, openOptions(a));
+  cli::ProgressBar bar("scanning");
+  dicom::ScanOptions options;
+  options.progress = [&](std::size_t done, std::size_t total) { bar.update(done, total); };
+  scan = dicom::scanDicom(a.path, options);
+  bar.finish();
+  seriesIndex = a.series.empty() ? dicom::defaultSeriesIndex(*scan, a.path)
+                                 : dicom::findSeries(*scan, a.series, a.path);
+  dicom::StackOptions stack;
+  stack.sliceSpacingMm = a.sliceSpacingMm;
+  return dicom::openDicomSeries(scan->series[*seriesIndex], stack);
+}
+
+json inspectJson(const Arguments& a) {
+  std::optional<dicom::DicomScan> scan;
+  std::optional<std::size_t> index;
+  auto source = openInput(a, scan, index);
+  const VolumeInfo& info = source->info();
+
+  // The value range needs every sample: stream the volume slab by slab.
+  constexpr int64_t kSlab = 8;
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  std::size_t nonFinite = 0;
+  std::vector<float> slab;
+  cli::ProgressBar bar("reading");
+  for (int64_t z = 0; z < info.dims[2]; z += kSlab) {
+    const int64_t count = std::min(kSlab, info.dims[2] - z);
+    slab.resize(static_cast<std::size_t>(info.sliceSamples() * count));
+    source->readSlab(z, count, slab);
+    for (float v : slab) {
+      if (!std::isfinite(v)) {
+        ++nonFinite;
+        continue;
+      }
+      lo = std::min(lo, static_cast<double>(v));
+      hi = std::max(hi, static_cast<double>(v));
+    }
+    bar.update(static_cast<std::size_t>(z + count), static_cast<std::size_t>(info.dims[2]));
+  }
+  bar.finish();
+
+  json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion}, {"path", a.path},
+            {"format", info.format}, {"modality", info.modality},
+            {"description", info.description}, {"seriesUid", info.seriesUid},
+            {"dimensions", info.dims}};
+  const Vec3 spacing = info.spacingMm();
+  j["spacingMm"] = {spacing.x, spacing.y, spacing.z};
+  json affine = json::array();
+  for (const auto& row : info.patientFromIndex.m) affine.push_back(row);
+  j["patientFromIndex"] = affine;
+  j["tiltDegrees"] = info.tiltDegrees;
+  j["resampled"] = info.resampled;
+  j["unit"] = info.unit;
+  j["integerValues"] = info.integerValues;
+  j["valueRange"] = std::isfinite(lo) ? json{{"min", lo}, {"max", hi}} : json(nullptr);
+  j["nonFiniteSamples"] = nonFinite;
+  j["warnings"] = info.warnings;
+  j["skipped"] = json::array();
+  if (scan) {
+    j["series"] = seriesJson(scan->series[*index], *index, true);
+    for (const auto& w : scan->warnings) j["warnings"].push_back(w);
+    for (const auto& s : scan->skipped) {
+      j["skipped"].push_back({{"path", s.path}, {"reason", s.reason}});
+    }
+  }
+  return j;
+}
+
+void printInspect(const json& j) {
+  fmt::print("{} ({})\n", j["path"].get<std::string>(), j["format"].get<std::string>());
+  if (j.contains("series")) {
+    const auto& s = j["series"];
+    fmt::print("series #{} {} \"{}\" {}\n", s["index"].get<std::size_t>(),
+               s["modality"].get<std::string>(), s["description"].get<std::string>(),
+               s["seriesUid"].get<std::string>());
+  }
+  const auto& d = j["dimensions"];
+  const auto& sp = j["spacingMm"];
+  fmt::print("dimensions   {} x {} x {}\n", d[0].get<int64_t>(), d[1].get<int64_t>(),
+             d[2].get<int64_t>());
+  fmt::print("spacing mm   {:.6g} x {:.6g} x {:.6g}\n", sp[0].get<double>(), sp[1].get<double>(),
+             sp[2].get<double>());
+  fmt::print("tilt         {:.3f} degrees{}\n", j["tiltDegrees"].get<double>(),
+             j["resampled"].get<bool>() ? " (slices resampled to uniform spacing)" : "");
+  fmt::print("patientFromIndex (LPS mm):\n");
+  for (const auto& row : j["patientFromIndex"]) {
+    fmt::print("  [{:12.6f} {:12.6f} {:12.6f} {:12.6f}]\n", row[0].get<double>(),
+               row[1].get<double>(), row[2].get<double>(), row[3].get<double>());
+  }
+  if (!j["valueRange"].is_null()) {
+    fmt::print("values       {} .. {} {}\n", j["valueRange"]["min"].get<double>(),
+               j["valueRange"]["max"].get<double>(), j["unit"].get<std::string>());
+  }
+  for (const auto& w : j["warnings"]) fmt::print("warning: {}\n", w.get<std::string>());
+  for (const auto& s : j["skipped"]) {
+    fmt::print("skipped: {}: {}\n", s["path"].get<std::string>(), s["reason"].get<std::string>());
+  }
+}
+
+int run(const Arguments& a) {
+  if (a.list) {
+    cli::ProgressBar bar("scanning");
+    dicom::ScanOptions options;
+    options.progress = [&](std::size_t done, std::size_t total) { bar.update(done, total); };
+    const dicom::DicomScan scan = dicom::scanDicom(a.path, options);
+    bar.finish();
+    const json j = listJson(a.path, scan);
+    if (a.json) {
+      std::cout << j.dump(2) << "\n";
+    } else {
+      printList(j);
+    }
+    return scan.series.empty() ? 1 : 0;
+  }
+  if (a.inspect) {
+    const json j = inspectJson(a);
+    if (a.json) {
+      std::cout << j.dump(2) << "\n";
+    } else {
+      printInspect(j);
+    }
+    return 0;
+  }
+  std::optional<dicom::DicomScan> scan;
+  std::optional<std::size_t> index;
+  auto source = openInput(a, scan, index);
+  cli::ProgressBar bar("exporting");
+  NiftiExportOptions options;
+  options.progress = [&](int64_t done, int64_t total) {
+    bar.update(static_cast<std::size_t>(done), static_cast<std::size_t>(total));
+  };
+  exportNifti(*source, a.exportPath, options);
+  bar.finish();
+  const VolumeInfo& info = source->info();
+  if (a.json) {
+    json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion},
+              {"path", a.path}, {"output", a.exportPath}, {"dimensions", info.dims},
+              {"warnings", info.warnings}};
+    std::cout << j.dump(2) << "\n";
+  } else {
+    fmt::print("wrote {} ({} x {} x {})\n", a.exportPath, info.dims[0], info.dims[1], info.dims[2]);
+    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"octoray-import: read CT series and volume files into octoray"};
+  Arguments a;
+  auto* list = app.add_flag("--list", a.list, "Print the table of image series found under PATH");
+  auto* inspect = app.add_flag("--inspect", a.inspect,
+                               "Print the resolved geometry, value range and warnings");
+  auto* exportOpt = app.add_option("--export", a.exportPath,
+                                   "Write the resolved volume as NIfTI (.nii or .nii.gz)");
+  list->excludes(inspect)->excludes(exportOpt);
+  inspect->excludes(exportOpt);
+  app.add_option("path", a.path, "DICOM folder, DICOMDIR, DICOM file, or a .nrrd/.nhdr/.mhd/"
+                                 ".mha/.nii/.nii.gz/.tif file or TIFF folder")
+      ->required();
+  app.add_flag("--json", a.json, "Machine-readable output (docs/import-json.md)");
+  app.add_option("--series", a.series, "Series table index or SeriesInstanceUID");
+  app.add_option("--slice-spacing", a.sliceSpacingMm,
+                 "Output slice spacing in mm where slices must be resampled (default: smallest gap)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--raw-dims", a.rawDims, "Raw volume: dimensions XxYxZ");
+  app.add_option("--raw-type", a.rawType, "Raw volume: sample type (uint8 int16 float32 ...)");
+  app.add_flag("--raw-big-endian", a.rawBigEndian, "Raw volume: big-endian samples");
+  app.add_option("--raw-spacing", a.rawSpacing, "Raw volume: spacing in mm, x,y,z");
+  app.add_option("--raw-header-bytes", a.rawHeaderBytes, "Raw volume: bytes before the data");
+  app.add_option("--tiff-spacing", a.tiffSpacing, "TIFF stack: spacing in mm, x,y,z");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (!a.list && !a.inspect && a.exportPath.empty()) {
+    std::cerr << "octoray-import: choose one of --list, --inspect or --export OUT\n"
+              << app.help();
+    return 2;
+  }
+  return cli::runTool("octoray-import", [&] { return run(a); });
+}
