@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Installs every Debian 12 package octoray builds, tests and benchmarks with (by name; see
+# docs/dependencies.md for why each is here). Does nothing when all are already installed.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config
+  # libraries
+  libgdcm-dev libvtk9-dev libopencv-dev zlib1g-dev libtbb-dev
+  nlohmann-json3-dev libcli11-dev libfmt-dev
+  # tests: GoogleTest, and independent references for DICOM decoding and conversion
+  libgtest-dev libgmock-dev libgdcm-tools dcm2niix python3 python3-pydicom python3-numpy python3-pil
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]} == 0)); then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+sudo=()
+if ((EUID != 0)); then
+  command -v sudo >/dev/null || { echo "install-deps: run as root (missing: ${missing[*]})" >&2; exit 1; }
+  sudo=(sudo)
+fi
+echo "install-deps: installing ${missing[*]}"
+"${sudo[@]}" apt-get update
+DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y --no-install-recommends "${missing[@]}"
