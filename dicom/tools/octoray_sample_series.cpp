@@ -1,0 +1,124 @@
+// octoray-sample-series: writes a small synthetic CT exam (the built-in sample) whose pixel
+// values are a known function of patient position, so every other tool can be tried at once.
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "cli_support.h"
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/synthetic_series.h"
+
+namespace {
+
+// Splits "64x64x40" or "0.5,0.5,1.25" into exactly three parts.
+std::vector<std::string> splitThree(const std::string& text, char separator, const char* option) {
+  std::vector<std::string> parts;
+  std::size_t begin = 0;
+  while (true) {
+    const std::size_t end = text.find(separator, begin);
+    parts.push_back(text.substr(begin, end - begin));
+    if (end == std::string::npos) break;
+    begin = end + 1;
+  }
+  if (parts.size() != 3) {
+    throw octoray::Error("", fmt::format("{} \"{}\": expected three values separated by '{}'",
+                                         option, text, separator));
+  }
+  return parts;
+}
+
+double parseNumber(const std::string& text, const char* option) {
+  std::size_t used = 0;
+  double value = 0;
+  try {
+    value = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used == 0 || used != text.size()) {
+    throw octoray::Error("", fmt::format("{}: \"{}\" is not a number", option, text));
+  }
+  return value;
+}
+
+int parseCount(const std::string& text, const char* option) {
+  const double value = parseNumber(text, option);
+  if (value != static_cast<int>(value) || value < 1) {
+    throw octoray::Error("", fmt::format("{}: \"{}\" is not a positive integer", option, text));
+  }
+  return static_cast<int>(value);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Writes a small synthetic CT exam (DICOM) whose values are a known function of "
+               "patient position: the built-in sample for trying octoray."};
+  std::string outDir;
+  std::string size = "64x64x40";
+  std::string spacing = "0.5,0.5,1.25";
+  double tiltDegrees = 0;
+  uint64_t seed = 1;
+  bool variableGaps = false;
+  bool withLocalizer = false;
+  app.add_option("OUT_DIR", outDir, "folder to write the DICOM files into")->required();
+  app.add_option("--size", size, "columns x rows x slices")->capture_default_str();
+  app.add_option("--spacing", spacing, "column, row and slice spacing in mm")
+      ->capture_default_str();
+  app.add_option("--tilt", tiltDegrees, "gantry tilt in degrees")->capture_default_str();
+  app.add_option("--seed", seed, "seed of the generated UIDs")->capture_default_str();
+  app.add_flag("--variable-gaps", variableGaps,
+               "every third gap is 1.5 times the slice spacing (the reader resamples)");
+  app.add_flag("--with-localizer", withLocalizer, "also write a coronal localizer image");
+  CLI11_PARSE(app, argc, argv);
+
+  return octoray::cli::runTool("octoray-sample-series", [&] {
+    using namespace octoray::dicom;
+    const std::vector<std::string> sizeParts = splitThree(size, 'x', "--size");
+    const std::vector<std::string> spacingParts = splitThree(spacing, ',', "--spacing");
+    SyntheticSeriesSpec spec;
+    spec.columns = parseCount(sizeParts[0], "--size");
+    spec.rows = parseCount(sizeParts[1], "--size");
+    const int slices = parseCount(sizeParts[2], "--size");
+    spec.columnSpacingMm = parseNumber(spacingParts[0], "--spacing");
+    spec.rowSpacingMm = parseNumber(spacingParts[1], "--spacing");
+    spec.sliceSpacingMm = parseNumber(spacingParts[2], "--spacing");
+    spec.tiltDegrees = tiltDegrees;
+    spec.seed = seed;
+    spec.withLocalizer = withLocalizer;
+    spec.sliceCount = slices;
+    if (variableGaps) {
+      // Gaps of 1, 1, 1.5 times the spacing, repeating: not an affine grid.
+      double distanceMm = 0;
+      for (int k = 0; k < slices; ++k) {
+        spec.sliceDistancesMm.push_back(distanceMm);
+        distanceMm += (k % 3 == 2 ? 1.5 : 1.0) * spec.sliceSpacingMm;
+      }
+    }
+    // Centre the stack on the patient origin.
+    const std::vector<double> distances = syntheticSliceDistances(spec);
+    const double midMm = 0.5 * (distances.front() + distances.back());
+    spec.centreMm = {0, 0, -midMm};
+
+    const SyntheticSeries series = writeSyntheticSeries(outDir, spec);
+    const std::vector<SyntheticImage> written = series.slices();
+    fmt::print("wrote {} CT slices ({} x {} pixels, {} x {} mm, slice spacing {} mm{}{}) to {}\n",
+               written.size(), spec.columns, spec.rows, spec.columnSpacingMm, spec.rowSpacingMm,
+               spec.sliceSpacingMm, variableGaps ? ", variable gaps" : "",
+               tiltDegrees != 0 ? fmt::format(", gantry tilt {} deg", tiltDegrees) : "", outDir);
+    fmt::print("  study  {}\n  series {}\n", series.studyUid, series.seriesUid);
+    fmt::print("  first slice {} at ({:.3f}, {:.3f}, {:.3f}) mm\n",
+               written.front().path.filename().string(), written.front().positionMm.x,
+               written.front().positionMm.y, written.front().positionMm.z);
+    fmt::print("  last slice  {} at ({:.3f}, {:.3f}, {:.3f}) mm\n",
+               written.back().path.filename().string(), written.back().positionMm.x,
+               written.back().positionMm.y, written.back().positionMm.z);
+    if (withLocalizer) fmt::print("  localizer {} (series {})\n", "LOC0001.dcm",
+                                  series.localizerSeriesUid);
+    return 0;
+  });
+}
