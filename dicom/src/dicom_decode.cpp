@@ -46,6 +46,12 @@ double storedValueFromBits(uint32_t raw, const PixelFormat& format) {
 DecodedImage decodeDicomFile(const std::string& path) {
   detail::quietGdcm();
   if (!std::filesystem::is_regular_file(path)) throw Error(path, "no such file");
+  detail::vetWithGdcm(path);
+  return detail::decodeVettedDicomFile(path);
+}
+
+DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
+  detail::quietGdcm();
   gdcm::ImageReader reader;
   reader.SetFileName(path.c_str());
   if (!reader.Read()) {

@@ -133,34 +133,38 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
   }
 }
 
-// Native (uncompressed) pixel data must hold every frame; encapsulated data is checked when
-// it is decoded.
-void checkNativePixelLength(const gdcm::File& file, const gdcm::DataSet& ds, const FileHeader& h,
-                            int frameCount) {
-  const gdcm::ByteValue* bv = ds.GetDataElement(kPixelData).GetByteValue();
-  if (!bv || file.GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) return;
+// The pixel data value must lie inside the file, and native (uncompressed) data must hold
+// every frame; encapsulated fragments are checked when they are decoded.
+void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCount,
+                      std::size_t pixelValueOffset) {
+  std::error_code ec;
+  const uint64_t fileBytes = std::filesystem::file_size(h.path, ec);
+  if (ec) throw Error(h.path, "cannot read file size: " + ec.message());
+  if (pixelValueOffset > fileBytes) throw Error(h.path, "file truncated before its pixel data");
+  if (file.GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) return;
   const uint64_t bits = static_cast<uint64_t>(h.rows) * static_cast<uint64_t>(h.columns) *
                         static_cast<uint64_t>(frameCount) *
                         static_cast<uint64_t>(std::max(h.samplesPerPixel, 1)) *
                         static_cast<uint64_t>(h.bitsAllocated);
   const uint64_t needed = (bits + 7) / 8;
-  if (bv->GetLength() < needed) {
+  if (fileBytes - pixelValueOffset < needed) {
     throw Error(h.path, fmt::format("pixel data is {} bytes, {} rows x {} columns x {} frames "
-                                    "need {} (file truncated or wrong element length)",
-                                    bv->GetLength(), h.rows, h.columns, frameCount, needed));
+                                    "need {} (file truncated)", fileBytes - pixelValueOffset,
+                                    h.rows, h.columns, frameCount, needed));
   }
 }
 
 // Reads one file's attributes (pixel data parsed, not decoded). Throws Error with the reason
 // to skip it.
 FileHeader readHeader(const std::string& path) {
-  // The whole file is parsed (pixel data included, not decoded) so that a truncated file is
-  // caught here, skipped with its reason, and the rest of its series still loads.
+  detail::vetWithGdcm(path);
+  // Everything up to the pixel data value, which is skipped (the stream stops at its start).
   gdcm::Reader reader;
   reader.SetFileName(path.c_str());
-  if (!reader.Read()) {
+  if (!reader.ReadUpToTag(kPixelData, std::set<gdcm::Tag>{kPixelData})) {
     throw Error(path, "not a DICOM file, or truncated (GDCM could not parse it)");
   }
+  const std::size_t pixelValueOffset = reader.GetStreamCurrentPosition();
   const gdcm::File& file = reader.GetFile();
   const gdcm::DataSet& ds = file.GetDataSet();
   FileHeader h;
@@ -178,7 +182,10 @@ FileHeader readHeader(const std::string& path) {
   h.rows = *rows;
   h.columns = *columns;
   h.bitsAllocated = detail::unsignedShort(file, ds, kBitsAllocated).value_or(0);
-  if (!ds.FindDataElement(kPixelData)) throw Error(path, "image without pixel data");
+  // The skipped pixel data value is not in the data set; the stream position tells it was there.
+  if (pixelValueOffset == std::size_t(-1)) {
+    throw Error(path, "image without pixel data");
+  }
   h.samplesPerPixel = detail::unsignedShort(file, ds, kSamplesPerPixel).value_or(1);
   h.photometric = stringValue(ds, kPhotometric);
   h.modality = stringValue(ds, kModality);
@@ -220,7 +227,7 @@ FileHeader readHeader(const std::string& path) {
                              ? file.GetHeader().GetDataSetTransferSyntax().GetString()
                              : "";
   for (auto& frame : h.frames) frame.transferSyntaxUid = ts;
-  checkNativePixelLength(file, ds, h, frameCount);
+  checkPixelLength(file, h, frameCount, pixelValueOffset);
   if (h.orientation && h.orientation->size() != 6) h.orientation.reset();
   if (h.pixelSpacing && h.pixelSpacing->size() != 2) h.pixelSpacing.reset();
   return h;

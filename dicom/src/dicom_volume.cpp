@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 
 #include "octoray/dicom/dicom_decode.h"
+#include "gdcm_support.h"
 #include "octoray/dicom/error.h"
 
 namespace octoray::dicom {
@@ -301,10 +302,10 @@ class DicomVolumeSource final : public VolumeSource {
 
   // Multi-frame objects are decoded once and kept while their frames are being read.
   std::shared_ptr<const DecodedImage> decodedFile(const std::string& path) {
-    if (!series_.multiFrame) return std::make_shared<const DecodedImage>(decodeDicomFile(path));
+    if (!series_.multiFrame) return std::make_shared<const DecodedImage>(detail::decodeVettedDicomFile(path));
     std::lock_guard lock(fileMutex_);
     if (cachedPath_ != path) {
-      cachedFile_ = std::make_shared<const DecodedImage>(decodeDicomFile(path));
+      cachedFile_ = std::make_shared<const DecodedImage>(detail::decodeVettedDicomFile(path));
       cachedPath_ = path;
     }
     return cachedFile_;

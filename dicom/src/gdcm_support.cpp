@@ -1,11 +1,20 @@
 #include "gdcm_support.h"
 
+#include <fcntl.h>
+#include <gdcmReader.h>
 #include <gdcmSequenceOfItems.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <gdcmTrace.h>
 #include <gdcmTransferSyntax.h>
 
 #include <cmath>
+#include <cerrno>
 #include <cstdlib>
+#include <cstring>
+#include <set>
+
+#include "octoray/dicom/error.h"
 #include <mutex>
 
 namespace octoray::dicom::detail {
@@ -69,18 +78,48 @@ std::optional<double> numberValue(const gdcm::DataSet& ds, const gdcm::Tag& tag)
   return values->front();
 }
 
-std::optional<int> unsignedShort(const gdcm::File& file, const gdcm::DataSet& ds,
+std::optional<int> unsignedShort(const gdcm::File& /*file*/, const gdcm::DataSet& ds,
                                  const gdcm::Tag& tag, bool asSigned) {
   if (!ds.FindDataElement(tag)) return std::nullopt;
   const gdcm::ByteValue* bv = ds.GetDataElement(tag).GetByteValue();
   if (!bv || bv->GetLength() < 2) return std::nullopt;
-  const auto* p = reinterpret_cast<const unsigned char*>(bv->GetPointer());
-  // GDCM keeps element bytes in the file's byte order; only explicit big endian differs.
-  const bool bigEndian =
-      file.GetHeader().GetDataSetTransferSyntax() == gdcm::TransferSyntax::ExplicitVRBigEndian;
-  const unsigned v = bigEndian ? (unsigned(p[0]) << 8 | p[1]) : (unsigned(p[1]) << 8 | p[0]);
+  uint16_t v = 0;
+  std::memcpy(&v, bv->GetPointer(), sizeof v);  // already swapped to host order by GDCM
   if (asSigned) return static_cast<int>(static_cast<int16_t>(v));
   return static_cast<int>(v);
+}
+
+void vetWithGdcm(const std::string& path) {
+  const pid_t pid = ::fork();
+  if (pid < 0) throw Error(path, std::string("cannot fork to vet the file: ") + std::strerror(errno));
+  if (pid == 0) {
+    // Child: parse as the real reader will, then leave without running any exit handlers.
+    const int devNull = ::open("/dev/null", O_WRONLY);
+    if (devNull >= 0) ::dup2(devNull, STDERR_FILENO);
+    int code = 0;
+    try {
+      gdcm::Reader header;
+      header.SetFileName(path.c_str());
+      const gdcm::Tag pixelData(0x7fe0, 0x0010);
+      if (!header.ReadUpToTag(pixelData, std::set<gdcm::Tag>{pixelData})) {
+        code = 1;
+      } else if (header.GetFile().GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) {
+        gdcm::Reader full;  // encapsulated fragments are parsed only by a full read
+        full.SetFileName(path.c_str());
+        code = full.Read() ? 0 : 1;
+      }
+    } catch (...) {
+      code = 1;
+    }
+    ::_exit(code);
+  }
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0) {
+    if (errno != EINTR) throw Error(path, "lost the vetting process");
+  }
+  if (WIFSIGNALED(status)) {
+    throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
+  }
 }
 
 std::vector<gdcm::DataSet> sequenceItems(const gdcm::DataSet& ds, const gdcm::Tag& tag) {

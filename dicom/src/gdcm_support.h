@@ -21,7 +21,19 @@ std::vector<std::string> stringValues(const gdcm::DataSet& ds, const gdcm::Tag& 
 // Decimal/integer string values (DS, IS) parsed to doubles; nullopt if absent or malformed.
 std::optional<std::vector<double>> numberValues(const gdcm::DataSet& ds, const gdcm::Tag& tag);
 std::optional<double> numberValue(const gdcm::DataSet& ds, const gdcm::Tag& tag);
-// A US (or US/SS) element read through the file's byte order; nullopt if absent/short.
+// Parses `path` with GDCM in a forked child first: Debian's GDCM is built with assertions,
+// and some truncated or malformed files make it abort() the whole process. Throws
+// octoray::Error naming the file when the parser dies on it; returns normally otherwise
+// (including when GDCM merely reports a parse failure, which the caller then sees itself).
+void vetWithGdcm(const std::string& path);
+
+}  // namespace octoray::dicom::detail
+namespace octoray::dicom { struct DecodedImage; }
+namespace octoray::dicom::detail {
+// decodeDicomFile without vetting, for files scanDicom has already vetted.
+DecodedImage decodeVettedDicomFile(const std::string& path);
+
+// A US (or US/SS) element (GDCM hands values over in host byte order); nullopt if absent.
 std::optional<int> unsignedShort(const gdcm::File& file, const gdcm::DataSet& ds,
                                  const gdcm::Tag& tag, bool asSigned = false);
 // The items of sequence `tag` (copies: GDCM may parse an undecoded sequence on the fly).

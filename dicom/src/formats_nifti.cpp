@@ -1,0 +1,191 @@
+// NIfTI-1/2 (.nii, .nii.gz, and .hdr/.img pairs): vtkNIFTIImageReader reads and byte-swaps the
+// header; the samples are then streamed by the shared raw slab reader from vox_offset (inflated
+// forward for .gz), so neither form is ever loaded whole.
+
+#include <vtkNIFTIImageHeader.h>
+#include <vtkNIFTIImageReader.h>
+#include <vtkNew.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include <fmt/format.h>
+
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+#include "raw_slab_reader.h"
+#include "vtk_messages.h"
+
+namespace octoray {
+
+namespace {
+
+SampleType sampleTypeFromNifti(int datatype, const std::string& path) {
+  switch (datatype) {
+    case 2:  // DT_UINT8
+      return SampleType::UInt8;
+    case 4:  // DT_INT16
+      return SampleType::Int16;
+    case 8:  // DT_INT32
+      return SampleType::Int32;
+    case 16:  // DT_FLOAT32
+      return SampleType::Float32;
+    case 64:  // DT_FLOAT64
+      return SampleType::Float64;
+    case 256:  // DT_INT8
+      return SampleType::Int8;
+    case 512:  // DT_UINT16
+      return SampleType::UInt16;
+    case 768:  // DT_UINT32
+      return SampleType::UInt32;
+    default:
+      throw Error(path, fmt::format("unsupported NIfTI datatype {} (supported: 8/16/32-bit "
+                                    "integers, float32, float64)",
+                                    datatype));
+  }
+}
+
+// The NIfTI-1 standard's quaternion form (nifti1.h, "METHOD 2"): rotation from (b, c, d) with
+// a = sqrt(1 - b^2 - c^2 - d^2), voxel sizes pixdim[1..3] (non-positive read as 1), and qfac
+// = pixdim[0] flipping the slice axis.
+Mat4 rasFromIndexByQuaternion(vtkNIFTIImageHeader* header) {
+  double b = header->GetQuaternB(), c = header->GetQuaternC(), d = header->GetQuaternD();
+  double a = 1.0 - (b * b + c * c + d * d);
+  if (a < 1e-7) {
+    // Not quite a unit quaternion: normalise (b, c, d) and take a 180-degree rotation.
+    const double n = 1.0 / std::sqrt(b * b + c * c + d * d);
+    b *= n;
+    c *= n;
+    d *= n;
+    a = 0;
+  } else {
+    a = std::sqrt(a);
+  }
+  auto voxelSize = [&](int i) {
+    const double v = header->GetPixDim(i);
+    return v > 0 && std::isfinite(v) ? v : 1.0;
+  };
+  const double qfac = header->GetPixDim(0) < 0 ? -1.0 : 1.0;
+  const double dx = voxelSize(1), dy = voxelSize(2), dz = voxelSize(3) * qfac;
+  const Vec3 r0{a * a + b * b - c * c - d * d, 2 * (b * c + a * d), 2 * (b * d - a * c)};
+  const Vec3 r1{2 * (b * c - a * d), a * a + c * c - b * b - d * d, 2 * (c * d + a * b)};
+  const Vec3 r2{2 * (b * d + a * c), 2 * (c * d - a * b), a * a + d * d - c * c - b * b};
+  return Mat4::fromColumns(dx * r0, dy * r1, dz * r2,
+                           {header->GetQOffsetX(), header->GetQOffsetY(), header->GetQOffsetZ()});
+}
+
+Mat4 rasFromIndexBySform(vtkNIFTIImageHeader* header) {
+  double rows[3][4];
+  header->GetSRowX(rows[0]);
+  header->GetSRowY(rows[1]);
+  header->GetSRowZ(rows[2]);
+  Mat4 m;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 4; ++c) m.m[r][c] = rows[r][c];
+  }
+  return m;
+}
+
+// The file holding the samples: the .nii itself, or the .img beside a .hdr.
+std::string niftiDataPath(const std::string& path, const std::string& magic) {
+  if (magic == "n+1" || magic == "n+2") return path;
+  std::string base = path;
+  std::string gz;
+  if (base.size() > 3 && base.ends_with(".gz")) {
+    base.resize(base.size() - 3);
+    gz = ".gz";
+  }
+  if (base.size() > 4 && (base.ends_with(".hdr") || base.ends_with(".HDR"))) {
+    base.resize(base.size() - 4);
+    for (const std::string& candidate : {base + ".img" + gz, base + ".img", base + ".img.gz",
+                                         base + ".IMG"}) {
+      std::error_code ec;
+      if (std::filesystem::is_regular_file(candidate, ec)) return candidate;
+    }
+    throw Error(path, "the .img file holding the samples is missing");
+  }
+  return path;
+}
+
+bool startsWithGzipMagic(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  unsigned char magic[2] = {0, 0};
+  file.read(reinterpret_cast<char*>(magic), 2);
+  return file.gcount() == 2 && magic[0] == 0x1f && magic[1] == 0x8b;
+}
+
+}  // namespace
+
+std::unique_ptr<VolumeSource> openNifti(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) throw Error(path, "not a readable file");
+  vtkNew<vtkNIFTIImageReader> reader;
+  detail::VtkMessages messages(reader);
+  // CanReadFile checks the header without the pipeline, whose failures are noisy.
+  if (!reader->CanReadFile(path.c_str())) throw Error(path, "not a NIfTI or Analyze file");
+  reader->SetFileName(path.c_str());
+  reader->UpdateInformation();
+  if (!messages.errors().empty()) {
+    throw Error(path, "not a readable NIfTI header: " + messages.errors().front());
+  }
+  vtkNIFTIImageHeader* header = reader->GetNIFTIHeader();
+
+  VolumeInfo info;
+  info.format = "nifti";
+  info.sourcePath = path;
+  info.description = std::filesystem::path(path).filename().string();
+  for (const auto& warning : messages.warnings()) info.warnings.push_back(warning);
+
+  const auto ndim = header->GetDim(0);
+  if (ndim < 1 || ndim > 7) throw Error(path, fmt::format("invalid dim[0] = {}", ndim));
+  for (int i = 0; i < 3; ++i) info.dims[static_cast<std::size_t>(i)] = i < ndim ? header->GetDim(i + 1) : 1;
+  int64_t volumes = 1;
+  for (int i = 4; i <= ndim; ++i) volumes *= std::max<int64_t>(header->GetDim(i), 1);
+  if (volumes > 1) {
+    info.warnings.push_back(fmt::format("{} volumes (4D or more): only the first is read", volumes));
+  }
+
+  // Index -> RAS by the sform when set (the full affine, shear included), else the qform, else
+  // the Analyze-style voxel sizes; then to LPS.
+  Mat4 rasFromIndex;
+  if (header->GetSFormCode() > 0) {
+    rasFromIndex = rasFromIndexBySform(header);
+  } else if (header->GetQFormCode() > 0) {
+    rasFromIndex = rasFromIndexByQuaternion(header);
+  } else {
+    info.warnings.push_back("no qform or sform: axis-aligned volume at the origin assumed");
+    for (int i = 0; i < 3; ++i) {
+      const double v = header->GetPixDim(i + 1);
+      rasFromIndex.m[i][i] = v > 0 && std::isfinite(v) ? v : 1.0;
+    }
+  }
+  Mat4 lpsFromRas;
+  lpsFromRas.m[0][0] = -1;
+  lpsFromRas.m[1][1] = -1;
+  info.patientFromIndex = lpsFromRas * rasFromIndex;
+  detail::checkAffine(info.patientFromIndex, path);
+
+  detail::RawLayout layout;
+  layout.dims = info.dims;
+  layout.sampleType = sampleTypeFromNifti(header->GetDataType(), path);
+  layout.bigEndian = reader->GetDataByteOrder() == VTK_FILE_BYTE_ORDER_BIG_ENDIAN;
+  layout.dataPath = niftiDataPath(path, header->GetMagic());
+  const auto voxOffset = header->GetVoxOffset();
+  if (voxOffset < 0) throw Error(path, fmt::format("invalid vox_offset {}", voxOffset));
+  if (startsWithGzipMagic(layout.dataPath)) {
+    layout.compression = detail::Compression::Deflate;
+    layout.streamOffsetBytes = static_cast<uint64_t>(voxOffset);
+  } else {
+    layout.fileOffsetBytes = static_cast<uint64_t>(voxOffset);
+  }
+  // scl_slope = 0 means "no scaling" (NIfTI-1 standard).
+  const double slope = header->GetSclSlope(), intercept = header->GetSclInter();
+  if (slope != 0 && std::isfinite(slope) && std::isfinite(intercept)) {
+    layout.valueScale = slope;
+    layout.valueOffset = intercept;
+  }
+  return detail::openRawLayout(std::move(info), std::move(layout));
+}
+
+}  // namespace octoray

@@ -1,0 +1,86 @@
+// openVolume(): picks the reader from what a path is. Extensions decide for files; a folder of
+// TIFFs only is a TIFF stack; everything else goes to DICOM discovery, which also recognises
+// single DICOM files without an extension and DICOMDIRs.
+
+#include <cctype>
+#include <filesystem>
+
+#include <fmt/format.h>
+
+#include "octoray/dicom/dicom_series.h"
+#include "octoray/dicom/dicom_volume.h"
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+
+namespace octoray {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string lowerCaseName(const fs::path& path) {
+  std::string name = path.filename().string();
+  for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return name;
+}
+
+bool isTiffName(const std::string& lowerName) {
+  return lowerName.ends_with(".tif") || lowerName.ends_with(".tiff");
+}
+
+// A folder whose visible entries are all TIFF files (at least one). Hidden files such as
+// .DS_Store are ignored; any other file or a subfolder makes it a DICOM folder.
+bool isTiffFolder(const fs::path& folder) {
+  std::error_code ec;
+  bool anyTiff = false;
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    const std::string name = lowerCaseName(entry.path());
+    if (name.starts_with(".")) continue;
+    if (!entry.is_regular_file(ec) || !isTiffName(name)) return false;
+    anyTiff = true;
+  }
+  return anyTiff && !ec;
+}
+
+std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptions& options) {
+  const dicom::DicomScan scan = dicom::scanDicom(path);
+  if (scan.series.empty()) {
+    if (fs::is_regular_file(path) && !scan.skipped.empty()) {
+      throw Error(path, "not a supported volume format (" + scan.skipped.front().reason + ")");
+    }
+    throw Error(path, fmt::format("no DICOM image series found ({} files examined)",
+                                  scan.filesExamined));
+  }
+  const std::size_t index = options.series.empty()
+                                ? dicom::defaultSeriesIndex(scan, path)
+                                : dicom::findSeries(scan, options.series, path);
+  return dicom::openDicomSeries(scan.series[index], options.stack);
+}
+
+}  // namespace
+
+std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOptions& options) {
+  if (options.raw) return openRawVolume(path, options.rawOptions);
+
+  std::error_code ec;
+  const auto status = fs::status(path, ec);
+  if (ec || !fs::exists(status)) throw Error(path, "no such file or folder");
+  if (fs::is_directory(status)) {
+    if (isTiffFolder(path)) return openTiffStack(path, options.tiffSpacingMm);
+    return openDicom(path, options);
+  }
+  if (!fs::is_regular_file(status)) throw Error(path, "not a regular file or folder");
+
+  const std::string name = lowerCaseName(path);
+  if (name.ends_with(".nrrd") || name.ends_with(".nhdr")) return openNrrd(path);
+  if (name.ends_with(".mhd") || name.ends_with(".mha")) return openMetaImage(path);
+  if (name.ends_with(".nii") || name.ends_with(".nii.gz") || name.ends_with(".hdr") ||
+      name.ends_with(".hdr.gz")) {
+    return openNifti(path);
+  }
+  if (isTiffName(name)) return openTiffStack(path, options.tiffSpacingMm);
+  // DICOMDIR, .dcm, or no telling extension: DICOM discovery decides.
+  return openDicom(path, options);
+}
+
+}  // namespace octoray
