@@ -1,0 +1,356 @@
+// NIfTI export and import (checked against VTK's own NIfTI reader as an independent oracle),
+// TIFF stacks written with OpenCV, and openVolume's dispatch, including garbage under every
+// supported extension.
+
+#include <gtest/gtest.h>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <vtkMatrix4x4.h>
+#include <vtkNIFTIImageHeader.h>
+#include <vtkNIFTIImageReader.h>
+#include <vtkNew.h>
+
+#include <filesystem>
+#include <random>
+
+#include <fmt/format.h>
+
+#include "format_test_helpers.h"
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/dicom/nifti_export.h"
+#include "test_paths.h"
+
+namespace octoray {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace formats_test;
+using VoxelFunction = std::function<float(int64_t, int64_t, int64_t)>;
+
+// An in-memory source from a function; optionally fails when slice `failAtSlice` is read.
+class FunctionSource final : public VolumeSource {
+ public:
+  FunctionSource(std::array<int64_t, 3> dims, Mat4 patientFromIndex, bool integerValues,
+                 VoxelFunction value, int64_t failAtSlice = -1)
+      : value_(std::move(value)), failAtSlice_(failAtSlice) {
+    info_.dims = dims;
+    info_.patientFromIndex = patientFromIndex;
+    info_.integerValues = integerValues;
+    info_.format = "memory";
+    info_.description = "function";
+  }
+  const VolumeInfo& info() const override { return info_; }
+  void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) override {
+    checkSlabRequest(info_, firstSlice, sliceCount, out.size());
+    if (failAtSlice_ >= firstSlice && failAtSlice_ < firstSlice + sliceCount) {
+      throw Error("memory", "simulated read failure");
+    }
+    std::size_t n = 0;
+    for (int64_t k = firstSlice; k < firstSlice + sliceCount; ++k)
+      for (int64_t j = 0; j < info_.dims[1]; ++j)
+        for (int64_t i = 0; i < info_.dims[0]; ++i) out[n++] = value_(i, j, k);
+  }
+
+ private:
+  VolumeInfo info_;
+  VoxelFunction value_;
+  int64_t failAtSlice_;
+};
+
+float integerRamp(int64_t i, int64_t j, int64_t k) {
+  return static_cast<float>(i - 3 * j + 100 * k - 500);
+}
+float fractionalRamp(int64_t i, int64_t j, int64_t k) {
+  return static_cast<float>(i) * 0.25f - static_cast<float>(k) * 1.5f + static_cast<float>(j) * 1e-3f;
+}
+
+// LPS: a rotation about the patient z axis (0.6/0.8) with anisotropic spacing.
+Mat4 obliqueAffine() {
+  return Mat4::fromColumns({0.3, 0.4, 0}, {-0.6, 0.45, 0}, {0, 0, 2.5}, {-100.5, 20.25, 7});
+}
+// A gantry tilt: the slice step leans along y.
+Mat4 shearedAffine() {
+  return Mat4::fromColumns({0.5, 0, 0}, {0, 0.5, 0}, {0, 0.2, 1.25}, {10, -30.5, 60});
+}
+Mat4 rasFromLps() {
+  Mat4 m;
+  m.m[0][0] = -1;
+  m.m[1][1] = -1;
+  return m;
+}
+
+vtkNew<vtkNIFTIImageReader> vtkHeaderOf(const fs::path& file) {
+  vtkNew<vtkNIFTIImageReader> reader;
+  reader->SetFileName(file.string().c_str());
+  reader->UpdateInformation();
+  return reader;
+}
+
+// Overwrites bytes of a plain .nii header (to make qform-only or scaled files).
+template <typename T>
+void patchHeader(const fs::path& file, std::streamoff offset, T value) {
+  std::fstream f(file, std::ios::binary | std::ios::in | std::ios::out);
+  f.seekp(offset);
+  f.write(reinterpret_cast<const char*>(&value), sizeof(T));
+  ASSERT_TRUE(f.good());
+}
+
+// ---- NIfTI ----------------------------------------------------------------------------------
+
+TEST(NiftiExport, IntegerObliqueVolumeRoundTripsAsInt16) {
+  const auto dir = test::freshTempDir("nifti_int16");
+  const std::array<int64_t, 3> dims{13, 11, 19};
+  for (const char* name : {"v.nii", "v.nii.gz"}) {
+    FunctionSource source(dims, obliqueAffine(), true, integerRamp);
+    int64_t lastDone = 0, lastTotal = 0;
+    NiftiExportOptions options;
+    options.progress = [&](int64_t done, int64_t total) {
+      EXPECT_GT(done, lastDone);
+      lastDone = done;
+      lastTotal = total;
+    };
+    exportNifti(source, (dir / name).string(), options);
+    EXPECT_EQ(lastDone, lastTotal);
+
+    // VTK's reader as an independent oracle for the header.
+    auto vtk = vtkHeaderOf(dir / name);
+    vtkNIFTIImageHeader* header = vtk->GetNIFTIHeader();
+    EXPECT_EQ(header->GetDataType(), 4);  // int16
+    EXPECT_EQ(header->GetSFormCode(), 1);
+    EXPECT_EQ(header->GetQFormCode(), 1);
+    EXPECT_EQ(header->GetXYZTUnits(), 2);  // mm
+    const Mat4 ras = rasFromLps() * obliqueAffine();
+    vtkMatrix4x4* q = vtk->GetQFormMatrix();  // rotation + offset; VTK scales by pixdim
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_NEAR(q->GetElement(r, c) * header->GetPixDim(c + 1), ras.m[r][c], 1e-6);
+      }
+      EXPECT_NEAR(q->GetElement(r, 3), ras.m[r][3], 1e-5);
+    }
+
+    auto back = openNifti((dir / name).string());
+    EXPECT_EQ(back->info().dims, dims);
+    EXPECT_EQ(back->info().format, "nifti");
+    EXPECT_TRUE(back->info().integerValues);
+    expectAffineNear(back->info().patientFromIndex, obliqueAffine(), 1e-6);
+    expectValues(*back, 4, integerRamp);
+  }
+  // Only the finished files are left: no temporary files.
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 2);
+}
+
+TEST(NiftiExport, ShearedFloatVolumeKeepsFullAffineInSform) {
+  const auto dir = test::freshTempDir("nifti_sheared");
+  const std::array<int64_t, 3> dims{7, 9, 17};
+  for (const char* name : {"s.nii", "s.nii.gz"}) {
+    FunctionSource source(dims, shearedAffine(), false, fractionalRamp);
+    exportNifti(source, (dir / name).string());
+    auto vtk = vtkHeaderOf(dir / name);
+    EXPECT_EQ(vtk->GetNIFTIHeader()->GetDataType(), 16);  // float32
+    EXPECT_EQ(vtk->GetNIFTIHeader()->GetQFormCode(), 0);  // a shear has no quaternion form
+    double row[4];
+    vtk->GetNIFTIHeader()->GetSRowY(row);
+    EXPECT_NEAR(row[2], -0.2, 1e-7);  // RAS y = -LPS y
+    EXPECT_NEAR(row[3], 30.5, 1e-7);
+
+    auto back = openNifti((dir / name).string());
+    EXPECT_FALSE(back->info().integerValues);
+    expectAffineNear(back->info().patientFromIndex, shearedAffine(), 1e-6);
+    expectValues(*back, 5, fractionalRamp);
+  }
+}
+
+TEST(NiftiExport, IntegersOutsideInt16AreWrittenAsFloat32) {
+  const auto dir = test::freshTempDir("nifti_wide");
+  auto wide = [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(i * 1000 + j * 10000 + k - 20000);  // reaches 40000+
+  };
+  FunctionSource source({8, 7, 3}, Mat4::identity(), true, wide);
+  exportNifti(source, (dir / "w.nii").string());
+  EXPECT_EQ(vtkHeaderOf(dir / "w.nii")->GetNIFTIHeader()->GetDataType(), 16);
+  expectValues(*openNifti((dir / "w.nii").string()), 3, wide);
+}
+
+TEST(NiftiExport, FailedExportLeavesNoFile) {
+  const auto dir = test::freshTempDir("nifti_fail");
+  for (bool integer : {true, false}) {
+    FunctionSource source({6, 6, 30}, Mat4::identity(), integer, integerRamp, 20);
+    EXPECT_THROW(exportNifti(source, (dir / "f.nii.gz").string()), Error);
+    EXPECT_TRUE(fs::is_empty(dir)) << "a partial or temporary file was left behind";
+  }
+  FunctionSource huge({40000, 1, 1}, Mat4::identity(), true, integerRamp);
+  EXPECT_THROW(exportNifti(huge, (dir / "h.nii").string()), Error);
+  FunctionSource ok({2, 2, 2}, Mat4::identity(), true, integerRamp);
+  EXPECT_THROW(exportNifti(ok, (dir / "no_such_folder" / "x.nii").string()), Error);
+}
+
+TEST(NiftiFormat, QformOnlyFileWithFlippedSlicesAndScaling) {
+  const auto dir = test::freshTempDir("nifti_qform");
+  // LPS with the slice axis reversed: left-handed in RAS, so the qform needs qfac = -1.
+  const Mat4 flipped = Mat4::fromColumns({0.3, 0.4, 0}, {-0.6, 0.45, 0}, {0, 0, -2.5}, {1, 2, 3});
+  FunctionSource source({5, 6, 7}, flipped, true, integerRamp);
+  const auto file = dir / "q.nii";
+  exportNifti(source, file.string());
+  patchHeader<int16_t>(file, 254, 0);  // sform_code = 0: only the qform is left
+  auto back = openNifti(file.string());
+  expectAffineNear(back->info().patientFromIndex, flipped, 1e-6);
+
+  patchHeader<float>(file, 112, 2.0f);   // scl_slope
+  patchHeader<float>(file, 116, -1.0f);  // scl_inter
+  auto scaled = openNifti(file.string());
+  EXPECT_TRUE(scaled->info().integerValues);
+  expectValues(*scaled, 7, [](int64_t i, int64_t j, int64_t k) {
+    return 2.0f * integerRamp(i, j, k) - 1.0f;
+  });
+  patchHeader<float>(file, 112, 0.5f);
+  EXPECT_FALSE(openNifti(file.string())->info().integerValues);
+}
+
+TEST(NiftiFormat, TruncatedAndJunkFilesThrow) {
+  const auto dir = test::freshTempDir("nifti_bad");
+  FunctionSource source({10, 10, 10}, Mat4::identity(), false, fractionalRamp);
+  exportNifti(source, (dir / "full.nii").string());
+  exportNifti(source, (dir / "full.nii.gz").string());
+  fs::copy_file(dir / "full.nii", dir / "cut.nii");
+  fs::resize_file(dir / "cut.nii", 352 + 1000);
+  expectErrorMentioning([&] { openNifti((dir / "cut.nii").string()); }, "cut.nii");
+  expectErrorMentioning([&] { openNifti((dir / "cut.nii").string()); },
+                        "expected 4000 bytes of data after a 352-byte header, file has 1352");
+  fs::copy_file(dir / "full.nii.gz", dir / "cut.nii.gz");
+  fs::resize_file(dir / "cut.nii.gz", fs::file_size(dir / "full.nii.gz") / 2);
+  expectErrorMentioning(
+      [&] {
+        auto cut = openNifti((dir / "cut.nii.gz").string());
+        std::vector<float> all(1000);
+        cut->readSlab(0, 10, all);
+      },
+      "cut.nii.gz");
+  writeFile(dir / "junk.nii", std::string(400, 'j'));
+  EXPECT_THROW(openNifti((dir / "junk.nii").string()), Error);
+  writeFile(dir / "empty.nii.gz", "");
+  EXPECT_THROW(openNifti((dir / "empty.nii.gz").string()), Error);
+  patchHeader<int16_t>(dir / "full.nii", 70, 1792);  // complex128: not a scalar type
+  EXPECT_THROW(openNifti((dir / "full.nii").string()), Error);
+}
+
+// ---- TIFF -----------------------------------------------------------------------------------
+
+cv::Mat page16(int width, int height, int64_t k) {
+  cv::Mat page(height, width, CV_16U);
+  for (int j = 0; j < height; ++j)
+    for (int i = 0; i < width; ++i) page.at<uint16_t>(j, i) = typedValue<uint16_t>(i, j, k);
+  return page;
+}
+
+TEST(TiffStack, FolderOfPagesInNaturalNameOrder) {
+  const auto dir = test::freshTempDir("tiff_folder");
+  // Slice k is stored under the k-th name in natural order, not in plain string order.
+  const char* names[] = {"slice1.tif", "slice2.tif", "slice9.tiff", "slice10.tif", "slice011.TIF"};
+  for (int k = 0; k < 5; ++k) ASSERT_TRUE(cv::imwrite((dir / names[k]).string(), page16(21, 13, k)));
+  auto source = openTiffStack(dir.string(), {0.5, 0.5, 2});
+  EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{21, 13, 5}));
+  EXPECT_EQ(source->info().format, "tiff");
+  EXPECT_TRUE(source->info().integerValues);
+  EXPECT_EQ(source->info().spacingMm().z, 2);
+  expectValues(*source, 2, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(typedValue<uint16_t>(i, j, k));
+  });
+}
+
+TEST(TiffStack, MultiPageFloatFile) {
+  const auto dir = test::freshTempDir("tiff_multi");
+  std::vector<cv::Mat> pages;
+  for (int k = 0; k < 6; ++k) {
+    cv::Mat page(9, 10, CV_32F);
+    for (int j = 0; j < 9; ++j)
+      for (int i = 0; i < 10; ++i) page.at<float>(j, i) = fractionalRamp(i, j, k);
+    pages.push_back(page);
+  }
+  ASSERT_TRUE(cv::imwrite((dir / "stack.tiff").string(), pages));
+  auto source = openTiffStack((dir / "stack.tiff").string());
+  EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{10, 9, 6}));
+  EXPECT_FALSE(source->info().integerValues);
+  expectValues(*source, 4, fractionalRamp);
+  expectValues(*source, 1, fractionalRamp);
+}
+
+TEST(TiffStack, ColourAndMismatchedPagesThrowNamingTheFile) {
+  const auto dir = test::freshTempDir("tiff_bad");
+  ASSERT_TRUE(cv::imwrite((dir / "colour.tif").string(), cv::Mat(4, 4, CV_8UC3, cv::Scalar(1, 2, 3))));
+  expectErrorMentioning([&] { openTiffStack((dir / "colour.tif").string()); }, "colour.tif");
+
+  const auto folder = dir / "mixed";
+  fs::create_directories(folder);
+  ASSERT_TRUE(cv::imwrite((folder / "a1.tif").string(), page16(8, 8, 0)));
+  ASSERT_TRUE(cv::imwrite((folder / "a2.tif").string(), page16(9, 8, 1)));
+  expectErrorMentioning(
+      [&] {
+        auto source = openTiffStack(folder.string());
+        std::vector<float> all(8 * 8 * 2);
+        source->readSlab(0, 2, all);
+      },
+      "a2.tif");
+  writeFile(dir / "junk.tif", "II*\0garbage");
+  EXPECT_THROW(openTiffStack((dir / "junk.tif").string()), Error);
+  EXPECT_THROW(openTiffStack((dir / "none").string()), Error);
+}
+
+// ---- openVolume -----------------------------------------------------------------------------
+
+TEST(FormatsOpenVolume, DispatchesByExtensionFolderAndRawOption) {
+  const auto dir = test::freshTempDir("open_volume");
+  const std::array<int64_t, 3> dims{12, 5, 4};
+  writeFile(dir / "v.raw", encode<int16_t>(dims, false));
+  OpenOptions raw;
+  raw.raw = true;
+  raw.rawOptions.dims = dims;
+  EXPECT_EQ(openVolume((dir / "v.raw").string(), raw)->info().format, "raw");
+
+  writeFile(dir / "v.NRRD", fmt::format("NRRD0004\ntype: short\ndimension: 3\nsizes: 12 5 4\n"
+                                        "endian: little\nencoding: raw\n\n") +
+                                encode<int16_t>(dims, false));
+  EXPECT_EQ(openVolume((dir / "v.NRRD").string())->info().format, "nrrd");
+  writeFile(dir / "v.mha", "NDims = 3\nDimSize = 12 5 4\nElementType = MET_SHORT\n"
+                           "ElementDataFile = LOCAL\n" + encode<int16_t>(dims, false));
+  EXPECT_EQ(openVolume((dir / "v.mha").string())->info().format, "metaimage");
+  FunctionSource source(dims, Mat4::identity(), true, integerRamp);
+  exportNifti(source, (dir / "v.nii.gz").string());
+  EXPECT_EQ(openVolume((dir / "v.nii.gz").string())->info().format, "nifti");
+
+  const auto tiffs = dir / "tiffs";
+  fs::create_directories(tiffs);
+  for (int k = 0; k < 3; ++k) {
+    ASSERT_TRUE(cv::imwrite((tiffs / fmt::format("p{}.tif", k)).string(), page16(6, 4, k)));
+  }
+  OpenOptions spaced;
+  spaced.tiffSpacingMm = {1, 1, 3};
+  auto stack = openVolume(tiffs.string(), spaced);
+  EXPECT_EQ(stack->info().format, "tiff");
+  EXPECT_EQ(stack->info().dims[2], 3);
+  EXPECT_EQ(stack->info().spacingMm().z, 3);
+  EXPECT_EQ(openVolume((tiffs / "p1.tif").string())->info().dims[2], 1);
+}
+
+TEST(FormatsOpenVolume, MissingUnknownAndGarbageInputsThrow) {
+  const auto dir = test::freshTempDir("open_garbage");
+  expectErrorMentioning([&] { openVolume((dir / "absent.nii").string()); }, "absent.nii");
+  writeFile(dir / "notes.txt", "just some text, not a volume\n");
+  expectErrorMentioning([&] { openVolume((dir / "notes.txt").string()); }, "notes.txt");
+
+  std::mt19937 random(1234);
+  for (const char* ext : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".tif",
+                          ".tiff", ".dcm", ""}) {
+    for (std::size_t size : {0u, 3u, 64u, 348u, 4096u}) {
+      std::string bytes(size, '\0');
+      for (char& c : bytes) c = static_cast<char>(random());
+      const auto file = dir / fmt::format("garbage{}{}", size, ext);
+      writeFile(file, bytes);
+      EXPECT_THROW(openVolume(file.string()), Error) << file;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace octoray
