@@ -7,7 +7,7 @@ packages=(
   # toolchain
   build-essential cmake ninja-build pkg-config
   # libraries
-  libgdcm-dev libvtk9-dev libopencv-dev zlib1g-dev libtbb-dev
+  libgdcm-dev libvtk9-dev libopencv-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
   nlohmann-json3-dev libcli11-dev libfmt-dev
   # tests: GoogleTest, and independent references for DICOM decoding and conversion
   libgtest-dev libgmock-dev libgdcm-tools dcm2niix python3 python3-pydicom python3-numpy python3-pil

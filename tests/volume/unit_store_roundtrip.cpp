@@ -1,0 +1,131 @@
+// The store holds exactly what the source gave: every leaf sample, every replicated border
+// sample, every filtered inner sample, and min/max ranges that bound whole subtrees.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "memory_volume.h"
+#include "octoray/dicom/error.h"
+#include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
+#include "test_paths.h"
+
+namespace octoray::volume {
+namespace {
+
+using test::MemoryVolume;
+
+// Level samples computed independently of the builder: the 2x2x2 box filter, clamped at the
+// edges, applied recursively from the source values, rounded half up in integers.
+std::vector<std::vector<int64_t>> referenceLevels(const MemoryVolume& v, const OctreeLayout& layout) {
+  std::vector<std::vector<int64_t>> levels(static_cast<std::size_t>(layout.levels()));
+  const int leaf = layout.leafLevel();
+  const Index3 d = layout.levelDims(leaf);
+  auto& leafValues = levels[static_cast<std::size_t>(leaf)];
+  for (int64_t k = 0; k < d[2]; ++k)
+    for (int64_t j = 0; j < d[1]; ++j)
+      for (int64_t i = 0; i < d[0]; ++i) leafValues.push_back(static_cast<int64_t>(v.at(i, j, k)) + 1024);
+  for (int l = leaf - 1; l >= 0; --l) {
+    const Index3 fd = layout.levelDims(l + 1), cd = layout.levelDims(l);
+    const auto& fine = levels[static_cast<std::size_t>(l + 1)];
+    auto& coarse = levels[static_cast<std::size_t>(l)];
+    const auto f = [&](int64_t i, int64_t j, int64_t k) {
+      return fine[static_cast<std::size_t>(std::min(i, fd[0] - 1) + fd[0] * (std::min(j, fd[1] - 1) + fd[1] * std::min(k, fd[2] - 1)))];
+    };
+    for (int64_t k = 0; k < cd[2]; ++k)
+      for (int64_t j = 0; j < cd[1]; ++j)
+        for (int64_t i = 0; i < cd[0]; ++i) {
+          int64_t sum = 0;
+          for (int dz = 0; dz < 2; ++dz)
+            for (int dy = 0; dy < 2; ++dy)
+              for (int dx = 0; dx < 2; ++dx) sum += f(2 * i + dx, 2 * j + dy, 2 * k + dz);
+          coarse.push_back((sum + 4) / 8);
+        }
+  }
+  return levels;
+}
+
+void expectStoreMatches(const MemoryVolume& v, const std::string& path, int brickSize, int border) {
+  const StoreReader store(path);
+  const OctreeLayout& layout = store.layout();
+  ASSERT_EQ(store.header().brickSize, static_cast<uint32_t>(brickSize));
+  const auto levels = referenceLevels(v, layout);
+  const int64_t B = brickSize, A = border, E = B + 2 * A;
+  for (int64_t id = 0; id < layout.nodeCount(); ++id) {
+    const NodeKey key = layout.nodeKey(id);
+    const Index3 d = layout.levelDims(key.level);
+    const auto& ref = levels[static_cast<std::size_t>(key.level)];
+    const Brick brick = store.readBrick(id);
+    ASSERT_EQ(brick.u16.size(), static_cast<std::size_t>(E * E * E));
+    int64_t lo = INT64_MAX, hi = INT64_MIN;
+    for (int64_t z = 0; z < E; ++z)
+      for (int64_t y = 0; y < E; ++y)
+        for (int64_t x = 0; x < E; ++x) {
+          // Border and out-of-volume samples replicate the nearest sample of the same level.
+          const int64_t gx = std::clamp(key.brick[0] * B - A + x, int64_t{0}, d[0] - 1);
+          const int64_t gy = std::clamp(key.brick[1] * B - A + y, int64_t{0}, d[1] - 1);
+          const int64_t gz = std::clamp(key.brick[2] * B - A + z, int64_t{0}, d[2] - 1);
+          const int64_t expected = ref[static_cast<std::size_t>(gx + d[0] * (gy + d[1] * gz))];
+          const int64_t got = brick.u16[static_cast<std::size_t>(x + E * (y + E * z))];
+          ASSERT_EQ(got, expected) << "node " << id << " level " << key.level << " sample " << x << "," << y << "," << z;
+          lo = std::min(lo, got);
+          hi = std::max(hi, got);
+        }
+    const NodeRecord& r = store.node(id);
+    EXPECT_LE(r.minValue, store.physical(static_cast<double>(lo))) << "node " << id;
+    EXPECT_GE(r.maxValue, store.physical(static_cast<double>(hi))) << "node " << id;
+    for (int64_t child : layout.children(id)) {
+      EXPECT_LE(r.minValue, store.node(child).minValue);
+      EXPECT_GE(r.maxValue, store.node(child).maxValue);
+    }
+  }
+}
+
+struct Case {
+  std::array<int64_t, 3> dims;
+  int brickSize, border;
+};
+
+class StoreRoundTrip : public ::testing::TestWithParam<Case> {};
+
+TEST_P(StoreRoundTrip, EveryLeafBorderAndInnerSampleIsExact) {
+  const Case c = GetParam();
+  std::mt19937 rng(42);
+  std::uniform_int_distribution<int> hu(-1024, 3071);
+  MemoryVolume volume(c.dims, [&](int64_t i, int64_t, int64_t k) {
+    // Random values with constant regions in places, so constant bricks occur too.
+    return k % 3 == 0 && i < 20 ? -1000.0f : static_cast<float>(hu(rng));
+  });
+  const auto dir = test::freshTempDir("store");
+  const std::string path = (dir / "v.octoray").string();
+  BuildOptions options;
+  options.brickSize = c.brickSize;
+  options.border = c.border;
+  const BuildReport report = buildStore(volume, path, options);
+  EXPECT_EQ(report.voxels, c.dims[0] * c.dims[1] * c.dims[2]);
+  EXPECT_EQ(report.clampedSamples, 0);
+  expectStoreMatches(volume, path, c.brickSize, c.border);
+}
+
+INSTANTIATE_TEST_SUITE_P(Sizes, StoreRoundTrip,
+                         ::testing::Values(Case{{1, 1, 1}, 16, 1}, Case{{33, 17, 5}, 16, 1},
+                                           Case{{33, 17, 5}, 16, 2}, Case{{70, 40, 90}, 32, 1},
+                                           Case{{65, 64, 33}, 32, 2}, Case{{130, 20, 70}, 64, 1}));
+
+TEST(StoreBuild, CodecsAreLossless) {
+  MemoryVolume volume({50, 45, 40}, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>((i * 7 + j * 13 + k * 29) % 2000 - 1000);
+  });
+  const auto dir = test::freshTempDir("codecs");
+  for (Codec codec : {Codec::None, Codec::Lz4, Codec::Zstd}) {
+    BuildOptions options;
+    options.brickSize = 16;
+    options.codec = codec;
+    const std::string path = (dir / ("v" + std::to_string(static_cast<int>(codec)) + ".octoray")).string();
+    buildStore(volume, path, options);
+    expectStoreMatches(volume, path, 16, 1);
+  }
+}
+
+}  // namespace
+}  // namespace octoray::volume

@@ -1,0 +1,72 @@
+#pragma once
+// Random access to an octree store: the header and node table are read and verified when the
+// store is opened; each brick is read with pread, checked against its checksum and
+// decompressed on request. Safe to call from many threads at once.
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "octoray/dicom/geometry.h"
+#include "octoray/volume/octree_layout.h"
+#include "octoray/volume/store_format.h"
+
+namespace octoray::volume {
+
+// One decompressed brick: (B + 2A)^3 samples, x fastest, as stored (UInt16 or Float32).
+struct Brick {
+  int64_t nodeId = -1;
+  int edge = 0;                       // B + 2A
+  SampleFormat format = SampleFormat::UInt16;
+  std::vector<uint16_t> u16;          // when format == UInt16
+  std::vector<float> f32;             // when format == Float32
+  std::vector<uint8_t> gradients;     // RGBA8 per sample when the store has gradients
+
+  std::size_t byteSize() const {
+    return u16.size() * 2 + f32.size() * 4 + gradients.size() + sizeof(Brick);
+  }
+};
+
+class StoreReader {
+ public:
+  // Opens and verifies header, node table and provenance; throws octoray::Error naming the
+  // file and the check that failed.
+  explicit StoreReader(const std::string& path);
+  ~StoreReader();
+  StoreReader(const StoreReader&) = delete;
+  StoreReader& operator=(const StoreReader&) = delete;
+
+  const std::string& path() const { return path_; }
+  const StoreHeader& header() const { return header_; }
+  const OctreeLayout& layout() const { return layout_; }
+  const std::vector<NodeRecord>& nodes() const { return nodes_; }
+  const NodeRecord& node(int64_t id) const;
+  const std::string& provenanceJson() const { return provenance_; }
+  Mat4 patientFromIndex() const;
+  SampleFormat sampleFormat() const { return static_cast<SampleFormat>(header_.sampleFormat); }
+  // Physical value of a stored sample.
+  double physical(double stored) const {
+    return sampleFormat() == SampleFormat::UInt16 ? stored * header_.valueScale + header_.valueOffset
+                                                  : stored;
+  }
+
+  // Reads, verifies and decompresses node `id` (constant nodes are expanded). Throws
+  // octoray::Error naming the file and node on a checksum or decompression failure.
+  Brick readBrick(int64_t id) const;
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+  StoreHeader header_{};
+  OctreeLayout layout_;
+  std::vector<NodeRecord> nodes_;
+  std::string provenance_;
+};
+
+// Parses and checks a header from raw bytes (used by the reader and the fuzz target).
+// `fileBytes` is the actual size of the file it came from.
+StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileBytes,
+                             const std::string& path);
+
+}  // namespace octoray::volume

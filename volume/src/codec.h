@@ -1,0 +1,21 @@
+#pragma once
+// Lossless payload compression and checksums for the store (internal to volume/).
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "octoray/volume/store_format.h"
+
+namespace octoray::volume::detail {
+
+// Appends the compressed form of `input` to `out`; returns the number of bytes appended.
+std::size_t compress(Codec codec, int zstdLevel, std::span<const uint8_t> input,
+                     std::vector<uint8_t>& out);
+// Decompresses exactly `output.size()` bytes; returns false when the data is corrupt.
+bool decompress(Codec codec, std::span<const uint8_t> input, std::span<uint8_t> output);
+uint64_t checksum(const void* data, std::size_t bytes);
+const char* codecName(Codec codec);
+
+}  // namespace octoray::volume::detail

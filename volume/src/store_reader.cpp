@@ -1,0 +1,192 @@
+#include "octoray/volume/store_reader.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "codec.h"
+#include "octoray/dicom/error.h"
+
+namespace octoray::volume {
+namespace {
+
+// Reads exactly `bytes` at `offset`; false on a short read (truncated file) or an I/O error.
+bool readAt(int fd, void* buffer, std::size_t bytes, uint64_t offset) {
+  auto* p = static_cast<char*>(buffer);
+  while (bytes > 0) {
+    const ssize_t n = ::pread(fd, p, bytes, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    p += n;
+    bytes -= static_cast<std::size_t>(n);
+    offset += static_cast<uint64_t>(n);
+  }
+  return true;
+}
+
+}  // namespace
+
+StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileBytes,
+                             const std::string& path) {
+  if (size < sizeof(StoreHeader)) {
+    throw Error(path, fmt::format("header: file too short ({} bytes) to be an octoray store", size));
+  }
+  StoreHeader h;
+  std::memcpy(&h, bytes, sizeof h);
+  if (std::memcmp(h.magic, kStoreMagic, sizeof h.magic) != 0) {
+    throw Error(path, "header: not an octoray store (bad magic)");
+  }
+  if (h.version != kStoreVersion) {
+    throw Error(path, fmt::format("header: store version {} is not supported (this build reads "
+                                  "version {})", h.version, kStoreVersion));
+  }
+  if (detail::checksum(&h, offsetof(StoreHeader, headerChecksum)) != h.headerChecksum) {
+    throw Error(path, "header: checksum mismatch (header corrupted)");
+  }
+  if (h.headerBytes != sizeof(StoreHeader)) throw Error(path, "header: wrong header size");
+  if (h.fileBytes != fileBytes) {
+    throw Error(path, fmt::format("header: file is {} bytes, header says {} (truncated or "
+                                  "extended)", fileBytes, h.fileBytes));
+  }
+  if (h.sampleFormat > 1 || h.codec > 2) throw Error(path, "header: unknown sample format or codec");
+  const auto within = [&](uint64_t offset, uint64_t length) {
+    return offset >= sizeof(StoreHeader) && offset <= fileBytes && length <= fileBytes - offset;
+  };
+  if (!within(h.nodeTableOffset, h.nodeTableBytes) || !within(h.provenanceOffset, h.provenanceBytes) ||
+      h.nodeTableBytes != h.nodeCount * sizeof(NodeRecord)) {
+    throw Error(path, "header: node table or provenance outside the file");
+  }
+  for (double v : h.patientFromIndex) {
+    if (!std::isfinite(v)) throw Error(path, "header: non-finite affine");
+  }
+  if (!std::isfinite(h.valueScale) || !std::isfinite(h.valueOffset) || h.valueScale == 0) {
+    throw Error(path, "header: invalid value mapping");
+  }
+  return h;
+}
+
+StoreReader::StoreReader(const std::string& path) : path_(path) {
+  fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd_ < 0) throw Error(path, std::string("cannot open: ") + std::strerror(errno));
+  try {
+    struct stat st {};
+    if (::fstat(fd_, &st) != 0) throw Error(path, "cannot stat");
+    const auto fileBytes = static_cast<uint64_t>(st.st_size);
+    char raw[sizeof(StoreHeader)] = {};
+    const std::size_t got = std::min<uint64_t>(fileBytes, sizeof raw);
+    if (!readAt(fd_, raw, got, 0)) throw Error(path, "header: cannot read");
+    header_ = parseStoreHeader(raw, got, fileBytes, path);
+
+    try {
+      layout_ = OctreeLayout({header_.dims[0], header_.dims[1], header_.dims[2]},
+                             static_cast<int>(header_.brickSize), static_cast<int>(header_.border));
+    } catch (const Error& e) {
+      throw Error(path, "header: " + e.reason());
+    }
+    if (layout_.levels() != static_cast<int>(header_.levels) ||
+        layout_.nodeCount() != static_cast<int64_t>(header_.nodeCount)) {
+      throw Error(path, "header: levels or node count disagree with the dimensions");
+    }
+
+    nodes_.resize(header_.nodeCount);
+    if (!readAt(fd_, nodes_.data(), header_.nodeTableBytes, header_.nodeTableOffset) ||
+        detail::checksum(nodes_.data(), header_.nodeTableBytes) != header_.nodeTableChecksum) {
+      throw Error(path, "node table: checksum mismatch (node table corrupted)");
+    }
+    provenance_.resize(header_.provenanceBytes);
+    if (!readAt(fd_, provenance_.data(), provenance_.size(), header_.provenanceOffset) ||
+        detail::checksum(provenance_.data(), provenance_.size()) != header_.provenanceChecksum) {
+      throw Error(path, "provenance: checksum mismatch");
+    }
+    for (std::size_t i = 0; i < nodes_.size(); ++i) {
+      const NodeRecord& n = nodes_[i];
+      const uint64_t bytes = uint64_t{n.payloadBytes} + n.gradientBytes;
+      const bool constant = (n.flags & kNodeConstant) != 0;
+      if ((constant && bytes != 0) || (!constant && (n.payloadBytes == 0 ||
+           n.payloadOffset < sizeof(StoreHeader) || n.payloadOffset > header_.nodeTableOffset ||
+           bytes > header_.nodeTableOffset - n.payloadOffset)) ||
+          !(n.minValue <= n.maxValue)) {
+        throw Error(path, fmt::format("node table: node {} has an invalid record", i));
+      }
+    }
+  } catch (...) {
+    ::close(fd_);
+    throw;
+  }
+}
+
+StoreReader::~StoreReader() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+const NodeRecord& StoreReader::node(int64_t id) const {
+  if (id < 0 || static_cast<std::size_t>(id) >= nodes_.size()) {
+    throw Error(path_, fmt::format("node {} out of range", id));
+  }
+  return nodes_[static_cast<std::size_t>(id)];
+}
+
+Mat4 StoreReader::patientFromIndex() const {
+  Mat4 m;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) m.m[r][c] = header_.patientFromIndex[r * 4 + c];
+  return m;
+}
+
+Brick StoreReader::readBrick(int64_t id) const {
+  const NodeRecord& n = node(id);
+  Brick brick;
+  brick.nodeId = id;
+  brick.edge = layout_.storedEdge();
+  brick.format = sampleFormat();
+  const auto samples = static_cast<std::size_t>(layout_.storedSamples());
+  const bool hasGradients = (header_.flags & kStoreHasGradients) != 0;
+  if (n.flags & kNodeConstant) {
+    if (brick.format == SampleFormat::UInt16) {
+      const double stored = (n.minValue - header_.valueOffset) / header_.valueScale;
+      brick.u16.assign(samples, static_cast<uint16_t>(std::lround(stored)));
+    } else {
+      brick.f32.assign(samples, n.minValue);
+    }
+    // A constant brick has a zero gradient: direction undefined (encoded as 128), norm 0.
+    if (hasGradients) {
+      brick.gradients.assign(samples * 4, 128);
+      for (std::size_t i = 0; i < samples; ++i) brick.gradients[4 * i + 3] = 0;
+    }
+    return brick;
+  }
+  std::vector<uint8_t> payload(uint64_t{n.payloadBytes} + n.gradientBytes);
+  if (!readAt(fd_, payload.data(), payload.size(), n.payloadOffset)) {
+    throw Error(path_, fmt::format("node {}: payload cannot be read (file truncated?)", id));
+  }
+  if (detail::checksum(payload.data(), payload.size()) != n.payloadChecksum) {
+    throw Error(path_, fmt::format("node {}: payload checksum mismatch (brick corrupted)", id));
+  }
+  const std::span<const uint8_t> values(payload.data(), n.payloadBytes);
+  bool ok;
+  const auto codec = static_cast<Codec>(header_.codec);
+  if (brick.format == SampleFormat::UInt16) {
+    brick.u16.resize(samples);
+    ok = detail::decompress(codec, values,
+                            {reinterpret_cast<uint8_t*>(brick.u16.data()), samples * 2});
+  } else {
+    brick.f32.resize(samples);
+    ok = detail::decompress(codec, values,
+                            {reinterpret_cast<uint8_t*>(brick.f32.data()), samples * 4});
+  }
+  if (ok && hasGradients) {
+    brick.gradients.resize(samples * 4);
+    ok = detail::decompress(codec, {payload.data() + n.payloadBytes, n.gradientBytes},
+                            brick.gradients);
+  }
+  if (!ok) throw Error(path_, fmt::format("node {}: payload does not decompress", id));
+  return brick;
+}
+
+}  // namespace octoray::volume
