@@ -98,8 +98,8 @@ std::string niftiDataPath(const std::string& path, const std::string& magic) {
   }
   if (base.size() > 4 && (base.ends_with(".hdr") || base.ends_with(".HDR"))) {
     base.resize(base.size() - 4);
-    for (const std::string& candidate : {base + ".img" + gz, base + ".img", base + ".img.gz",
-                                         base + ".IMG"}) {
+    for (const std::string& candidate :
+         {base + ".img" + gz, base + ".img", base + ".img.gz", base + ".IMG"}) {
       std::error_code ec;
       if (std::filesystem::is_regular_file(candidate, ec)) return candidate;
     }
@@ -139,11 +139,13 @@ std::unique_ptr<VolumeSource> openNifti(const std::string& path) {
 
   const auto ndim = header->GetDim(0);
   if (ndim < 1 || ndim > 7) throw Error(path, fmt::format("invalid dim[0] = {}", ndim));
-  for (int i = 0; i < 3; ++i) info.dims[static_cast<std::size_t>(i)] = i < ndim ? header->GetDim(i + 1) : 1;
+  for (int i = 0; i < 3; ++i)
+    info.dims[static_cast<std::size_t>(i)] = i < ndim ? header->GetDim(i + 1) : 1;
   int64_t volumes = 1;
   for (int i = 4; i <= ndim; ++i) volumes *= std::max<int64_t>(header->GetDim(i), 1);
   if (volumes > 1) {
-    info.warnings.push_back(fmt::format("{} volumes (4D or more): only the first is read", volumes));
+    info.warnings.push_back(
+        fmt::format("{} volumes (4D or more): only the first is read", volumes));
   }
 
   // Index -> RAS by the sform when set (the full affine, shear included), else the qform, else

@@ -67,7 +67,9 @@ class NrrdHeaderReader : public vtkNrrdReader {
   static NrrdHeaderReader* New();
   vtkTypeMacro(NrrdHeaderReader, vtkNrrdReader)
 
-  bool parseHeader() { return ReadHeader() != 0; }
+      bool parseHeader() {
+    return ReadHeader() != 0;
+  }
   bool rawEncoding() const { return Encoding == ENCODING_RAW; }
   bool gzipEncoding() const { return Encoding == ENCODING_GZIP; }
   vtkStringArray* dataFiles() const { return DataFiles; }
@@ -146,8 +148,8 @@ Vec3 nrrdSpaceToLps(const std::optional<std::string>& space, std::vector<std::st
   if (s == "left-posterior-superior" || s == "lps") return {1, 1, 1};
   if (s == "right-anterior-superior" || s == "ras") return {-1, -1, 1};
   if (s == "left-anterior-superior" || s == "las") return {1, -1, 1};
-  warnings.push_back(fmt::format("space '{}' is not anatomical: axes are taken as patient LPS",
-                                 *space));
+  warnings.push_back(
+      fmt::format("space '{}' is not anatomical: axes are taken as patient LPS", *space));
   return {1, 1, 1};
 }
 
@@ -354,7 +356,7 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
   // ITK's convention: space is LPS, TransformMatrix row a is the direction of index axis a.
   std::array<Vec3, 3> axes;
   std::array<double, 3> spacingMm{1, 1, 1};
-  Vec3 originMm;
+  double origin[3] = {0, 0, 0};
   const int spatial = std::min(nDims, 3);
   for (int a = 0; a < spatial; ++a) {
     spacingMm[static_cast<std::size_t>(a)] = image.ElementSpacing(a);
@@ -362,9 +364,9 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
     for (int r = 0; r < spatial; ++r) v[r] = image.TransformMatrix(a, r);
     axes[static_cast<std::size_t>(a)] = normalize({v[0], v[1], v[2]});
   }
-  for (int r = 0; r < spatial; ++r) (r == 0 ? originMm.x : r == 1 ? originMm.y : originMm.z) = image.Position(r);
+  for (int r = 0; r < spatial; ++r) origin[r] = image.Position(r);
   if (spatial == 2) axes[2] = normalize(cross(axes[0], axes[1]));
-  info.patientFromIndex = affineFromAxes(axes, spacingMm, originMm);
+  info.patientFromIndex = affineFromAxes(axes, spacingMm, {origin[0], origin[1], origin[2]});
   detail::checkAffine(info.patientFromIndex, path);
 
   detail::RawLayout layout;
@@ -387,8 +389,9 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
     layout.dataPath = path;
   } else {
     const std::filesystem::path file(dataFile);
-    layout.dataPath = file.is_absolute() ? file.string()
-                                         : (std::filesystem::path(path).parent_path() / file).string();
+    layout.dataPath = file.is_absolute()
+                          ? file.string()
+                          : (std::filesystem::path(path).parent_path() / file).string();
   }
   const int headerSize = image.HeaderSize();
   if (headerSize > 0) {

@@ -52,24 +52,39 @@ SampleType parseSampleType(const std::string& name) {
   // Our own names, C/NRRD spellings and MetaImage's MET_* names (without the prefix; MetaIO's
   // LONG is 32 bits).
   static constexpr Spelling kSpellings[] = {
-      {"uint8", SampleType::UInt8},         {"uint8_t", SampleType::UInt8},
-      {"uchar", SampleType::UInt8},         {"unsigned char", SampleType::UInt8},
-      {"int8", SampleType::Int8},           {"int8_t", SampleType::Int8},
-      {"char", SampleType::Int8},           {"signed char", SampleType::Int8},
-      {"uint16", SampleType::UInt16},       {"uint16_t", SampleType::UInt16},
-      {"ushort", SampleType::UInt16},       {"unsigned short", SampleType::UInt16},
+      {"uint8", SampleType::UInt8},
+      {"uint8_t", SampleType::UInt8},
+      {"uchar", SampleType::UInt8},
+      {"unsigned char", SampleType::UInt8},
+      {"int8", SampleType::Int8},
+      {"int8_t", SampleType::Int8},
+      {"char", SampleType::Int8},
+      {"signed char", SampleType::Int8},
+      {"uint16", SampleType::UInt16},
+      {"uint16_t", SampleType::UInt16},
+      {"ushort", SampleType::UInt16},
+      {"unsigned short", SampleType::UInt16},
       {"unsigned short int", SampleType::UInt16},
-      {"int16", SampleType::Int16},         {"int16_t", SampleType::Int16},
-      {"short", SampleType::Int16},         {"short int", SampleType::Int16},
-      {"signed short", SampleType::Int16},  {"signed short int", SampleType::Int16},
-      {"uint32", SampleType::UInt32},       {"uint32_t", SampleType::UInt32},
-      {"uint", SampleType::UInt32},         {"unsigned int", SampleType::UInt32},
+      {"int16", SampleType::Int16},
+      {"int16_t", SampleType::Int16},
+      {"short", SampleType::Int16},
+      {"short int", SampleType::Int16},
+      {"signed short", SampleType::Int16},
+      {"signed short int", SampleType::Int16},
+      {"uint32", SampleType::UInt32},
+      {"uint32_t", SampleType::UInt32},
+      {"uint", SampleType::UInt32},
+      {"unsigned int", SampleType::UInt32},
       {"ulong", SampleType::UInt32},
-      {"int32", SampleType::Int32},         {"int32_t", SampleType::Int32},
-      {"int", SampleType::Int32},           {"signed int", SampleType::Int32},
+      {"int32", SampleType::Int32},
+      {"int32_t", SampleType::Int32},
+      {"int", SampleType::Int32},
+      {"signed int", SampleType::Int32},
       {"long", SampleType::Int32},
-      {"float32", SampleType::Float32},     {"float", SampleType::Float32},
-      {"float64", SampleType::Float64},     {"double", SampleType::Float64},
+      {"float32", SampleType::Float32},
+      {"float", SampleType::Float32},
+      {"float64", SampleType::Float64},
+      {"double", SampleType::Float64},
   };
   const std::string key = normalizedTypeName(name);
   for (const auto& spelling : kSpellings) {
@@ -109,8 +124,8 @@ uint64_t volumeBytes(const std::array<int64_t, 3>& dims, SampleType type, const 
     }
     if (__builtin_mul_overflow(bytes, static_cast<uint64_t>(d), &bytes) ||
         bytes > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
-      throw Error(path, fmt::format("dimensions {}x{}x{} are too large", dims[0], dims[1],
-                                    dims[2]));
+      throw Error(path,
+                  fmt::format("dimensions {}x{}x{} are too large", dims[0], dims[1], dims[2]));
     }
   }
   return bytes;
@@ -324,13 +339,13 @@ class RawSource final : public VolumeSource {
       return;
     }
     file_.clear();
-    file_.seekg(
-        static_cast<std::streamoff>(layout_.fileOffsetBytes + layout_.streamOffsetBytes + streamPos));
+    file_.seekg(static_cast<std::streamoff>(layout_.fileOffsetBytes + layout_.streamOffsetBytes +
+                                            streamPos));
     file_.read(reinterpret_cast<char*>(dst), static_cast<std::streamsize>(n));
     if (static_cast<std::size_t>(file_.gcount()) != n) {
-      throw Error(layout_.dataPath,
-                  fmt::format("read failed at data byte {} (the file shrank while open?)",
-                              streamPos));
+      throw Error(
+          layout_.dataPath,
+          fmt::format("read failed at data byte {} (the file shrank while open?)", streamPos));
     }
   }
 

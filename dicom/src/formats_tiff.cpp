@@ -56,8 +56,8 @@ bool naturalLess(const std::string& a, const std::string& b) {
 void checkPage(const cv::Mat& page, const std::string& what, int width, int height, int type) {
   if (page.empty()) throw Error(what, "cannot be decoded as an image");
   if (page.channels() != 1) {
-    throw Error(what, fmt::format("has {} channels: only grey-scale TIFFs are supported",
-                                  page.channels()));
+    throw Error(
+        what, fmt::format("has {} channels: only grey-scale TIFFs are supported", page.channels()));
   }
   const int depth = page.depth();
   if (depth != CV_8U && depth != CV_8S && depth != CV_16U && depth != CV_16S && depth != CV_32F &&
@@ -83,8 +83,7 @@ class TiffSource final : public VolumeSource {
     const cv::Mat first = decodePages(0, 1).front();
     checkPage(first, files_.front(), -1, -1, -1);
     type_ = first.type();
-    info_.dims = {first.cols, first.rows,
-                  multiPage_ ? pages : static_cast<int64_t>(files_.size())};
+    info_.dims = {first.cols, first.rows, multiPage_ ? pages : static_cast<int64_t>(files_.size())};
     info_.patientFromIndex =
         Mat4::fromColumns({spacingMm.x, 0, 0}, {0, spacingMm.y, 0}, {0, 0, spacingMm.z}, {});
     detail::checkAffine(info_.patientFromIndex, path);
@@ -132,8 +131,8 @@ class TiffSource final : public VolumeSource {
       throw Error(pageName(firstSlice), fmt::format("cannot be decoded: {}", e.what()));
     }
     if (static_cast<int64_t>(pages.size()) != count) {
-      throw Error(files_.front(), fmt::format("cannot decode pages {} to {}", firstSlice,
-                                              firstSlice + count - 1));
+      throw Error(files_.front(),
+                  fmt::format("cannot decode pages {} to {}", firstSlice, firstSlice + count - 1));
     }
     return pages;
   }

@@ -24,49 +24,49 @@ namespace {
 // The NIfTI-1 header as the standard (nifti1.h) lays it out. VTK 9.1 installs only a forward
 // declaration of nifti_1_header, so the layout is spelled out here and checked.
 struct Nifti1Header {
-  int32_t sizeofHdr;         // 4: must be 348
-  char dataType[10];         // 10: unused
-  char dbName[18];           // 18: unused
-  int32_t extents;           // 4: unused
-  int16_t sessionError;      // 2: unused
-  char regular;              // 1: unused
-  char dimInfo;              // 1: MRI slice ordering
-  int16_t dim[8];            // 16: dim[0] = number of dimensions, dim[1..] sizes
-  float intentP1;            // 4
-  float intentP2;            // 4
-  float intentP3;            // 4
-  int16_t intentCode;        // 2
-  int16_t datatype;          // 2: DT_* code
-  int16_t bitpix;            // 2: bits per voxel
-  int16_t sliceStart;        // 2
-  float pixdim[8];           // 32: pixdim[0] = qfac, pixdim[1..3] voxel sizes
-  float voxOffset;           // 4: byte offset of the samples in a .nii
-  float sclSlope;            // 4: physical = stored * slope + inter
-  float sclInter;            // 4
-  int16_t sliceEnd;          // 2
-  char sliceCode;            // 1
-  char xyztUnits;            // 1: NIFTI_UNITS_*
-  float calMax;              // 4: display range
-  float calMin;              // 4
-  float sliceDuration;       // 4
-  float tOffset;             // 4
-  int32_t glmax;             // 4: unused
-  int32_t glmin;             // 4: unused
-  char descrip[80];          // 80
-  char auxFile[24];          // 24
-  int16_t qformCode;         // 2: NIFTI_XFORM_* of the quaternion form
-  int16_t sformCode;         // 2: NIFTI_XFORM_* of the affine rows
-  float quaternB;            // 4
-  float quaternC;            // 4
-  float quaternD;            // 4
-  float qoffsetX;            // 4
-  float qoffsetY;            // 4
-  float qoffsetZ;            // 4
-  float srowX[4];            // 16: first row of the index -> RAS affine
-  float srowY[4];            // 16
-  float srowZ[4];            // 16
-  char intentName[16];       // 16
-  char magic[4];             // 4: "n+1\0" for a single .nii file
+  int32_t sizeofHdr;     // 4: must be 348
+  char dataType[10];     // 10: unused
+  char dbName[18];       // 18: unused
+  int32_t extents;       // 4: unused
+  int16_t sessionError;  // 2: unused
+  char regular;          // 1: unused
+  char dimInfo;          // 1: MRI slice ordering
+  int16_t dim[8];        // 16: dim[0] = number of dimensions, dim[1..] sizes
+  float intentP1;        // 4
+  float intentP2;        // 4
+  float intentP3;        // 4
+  int16_t intentCode;    // 2
+  int16_t datatype;      // 2: DT_* code
+  int16_t bitpix;        // 2: bits per voxel
+  int16_t sliceStart;    // 2
+  float pixdim[8];       // 32: pixdim[0] = qfac, pixdim[1..3] voxel sizes
+  float voxOffset;       // 4: byte offset of the samples in a .nii
+  float sclSlope;        // 4: physical = stored * slope + inter
+  float sclInter;        // 4
+  int16_t sliceEnd;      // 2
+  char sliceCode;        // 1
+  char xyztUnits;        // 1: NIFTI_UNITS_*
+  float calMax;          // 4: display range
+  float calMin;          // 4
+  float sliceDuration;   // 4
+  float tOffset;         // 4
+  int32_t glmax;         // 4: unused
+  int32_t glmin;         // 4: unused
+  char descrip[80];      // 80
+  char auxFile[24];      // 24
+  int16_t qformCode;     // 2: NIFTI_XFORM_* of the quaternion form
+  int16_t sformCode;     // 2: NIFTI_XFORM_* of the affine rows
+  float quaternB;        // 4
+  float quaternC;        // 4
+  float quaternD;        // 4
+  float qoffsetX;        // 4
+  float qoffsetY;        // 4
+  float qoffsetZ;        // 4
+  float srowX[4];        // 16: first row of the index -> RAS affine
+  float srowY[4];        // 16
+  float srowZ[4];        // 16
+  char intentName[16];   // 16
+  char magic[4];         // 4: "n+1\0" for a single .nii file
 };
 static_assert(sizeof(Nifti1Header) == 348);
 static_assert(offsetof(Nifti1Header, dim) == 40);
@@ -231,8 +231,7 @@ bool endsWithGz(const std::string& path) {
 
 }  // namespace
 
-void exportNifti(VolumeSource& source, const std::string& path,
-                 const NiftiExportOptions& options) {
+void exportNifti(VolumeSource& source, const std::string& path, const NiftiExportOptions& options) {
   const VolumeInfo& info = source.info();
   for (int64_t d : info.dims) {
     if (d < 1 || d > std::numeric_limits<int16_t>::max()) {
@@ -280,7 +279,8 @@ void exportNifti(VolumeSource& source, const std::string& path,
   Nifti1Header header{};
   header.sizeofHdr = 348;
   header.dim[0] = 3;
-  for (int i = 0; i < 3; ++i) header.dim[i + 1] = static_cast<int16_t>(info.dims[static_cast<std::size_t>(i)]);
+  for (int i = 0; i < 3; ++i)
+    header.dim[i + 1] = static_cast<int16_t>(info.dims[static_cast<std::size_t>(i)]);
   for (int i = 4; i < 8; ++i) header.dim[i] = 1;
   for (int i = 4; i < 8; ++i) header.pixdim[i] = 1;
   header.datatype = asInt16 ? kDtInt16 : kDtFloat32;

@@ -48,12 +48,11 @@ std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptio
     if (fs::is_regular_file(path) && !scan.skipped.empty()) {
       throw Error(path, "not a supported volume format (" + scan.skipped.front().reason + ")");
     }
-    throw Error(path, fmt::format("no DICOM image series found ({} files examined)",
-                                  scan.filesExamined));
+    throw Error(path,
+                fmt::format("no DICOM image series found ({} files examined)", scan.filesExamined));
   }
-  const std::size_t index = options.series.empty()
-                                ? dicom::defaultSeriesIndex(scan, path)
-                                : dicom::findSeries(scan, options.series, path);
+  const std::size_t index = options.series.empty() ? dicom::defaultSeriesIndex(scan, path)
+                                                   : dicom::findSeries(scan, options.series, path);
   return dicom::openDicomSeries(scan.series[index], options.stack);
 }
 

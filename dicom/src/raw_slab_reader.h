@@ -26,7 +26,7 @@ struct RawLayout {
   uint64_t fileOffsetBytes = 0;    // where the samples (or the compressed stream) start in the file
   uint64_t streamOffsetBytes = 0;  // bytes to skip inside the decompressed stream (.nii.gz)
   Compression compression = Compression::None;
-  double valueScale = 1;   // physical = stored * valueScale + valueOffset
+  double valueScale = 1;  // physical = stored * valueScale + valueOffset
   double valueOffset = 0;
 };
 

@@ -22,7 +22,8 @@ namespace fs = std::filesystem;
 
 // A deterministic integer per voxel that reaches far into every type's range.
 inline uint64_t voxelHash(int64_t i, int64_t j, int64_t k) {
-  return static_cast<uint64_t>(i * 2654435761LL + j * 40503LL + k * 9973LL + 17) * 0x9E3779B97F4A7C15ULL;
+  return static_cast<uint64_t>(i * 2654435761LL + j * 40503LL + k * 9973LL + 17) *
+         0x9E3779B97F4A7C15ULL;
 }
 
 template <typename T>
@@ -52,28 +53,44 @@ inline std::string encode(const std::array<int64_t, 3>& dims, bool bigEndian) {
 
 inline std::string encodeAs(SampleType type, const std::array<int64_t, 3>& dims, bool bigEndian) {
   switch (type) {
-    case SampleType::UInt8: return encode<uint8_t>(dims, bigEndian);
-    case SampleType::Int8: return encode<int8_t>(dims, bigEndian);
-    case SampleType::UInt16: return encode<uint16_t>(dims, bigEndian);
-    case SampleType::Int16: return encode<int16_t>(dims, bigEndian);
-    case SampleType::UInt32: return encode<uint32_t>(dims, bigEndian);
-    case SampleType::Int32: return encode<int32_t>(dims, bigEndian);
-    case SampleType::Float32: return encode<float>(dims, bigEndian);
-    case SampleType::Float64: return encode<double>(dims, bigEndian);
+    case SampleType::UInt8:
+      return encode<uint8_t>(dims, bigEndian);
+    case SampleType::Int8:
+      return encode<int8_t>(dims, bigEndian);
+    case SampleType::UInt16:
+      return encode<uint16_t>(dims, bigEndian);
+    case SampleType::Int16:
+      return encode<int16_t>(dims, bigEndian);
+    case SampleType::UInt32:
+      return encode<uint32_t>(dims, bigEndian);
+    case SampleType::Int32:
+      return encode<int32_t>(dims, bigEndian);
+    case SampleType::Float32:
+      return encode<float>(dims, bigEndian);
+    case SampleType::Float64:
+      return encode<double>(dims, bigEndian);
   }
   return {};
 }
 
 inline float expectedAs(SampleType type, int64_t i, int64_t j, int64_t k) {
   switch (type) {
-    case SampleType::UInt8: return static_cast<float>(typedValue<uint8_t>(i, j, k));
-    case SampleType::Int8: return static_cast<float>(typedValue<int8_t>(i, j, k));
-    case SampleType::UInt16: return static_cast<float>(typedValue<uint16_t>(i, j, k));
-    case SampleType::Int16: return static_cast<float>(typedValue<int16_t>(i, j, k));
-    case SampleType::UInt32: return static_cast<float>(typedValue<uint32_t>(i, j, k));
-    case SampleType::Int32: return static_cast<float>(typedValue<int32_t>(i, j, k));
-    case SampleType::Float32: return typedValue<float>(i, j, k);
-    case SampleType::Float64: return static_cast<float>(typedValue<double>(i, j, k));
+    case SampleType::UInt8:
+      return static_cast<float>(typedValue<uint8_t>(i, j, k));
+    case SampleType::Int8:
+      return static_cast<float>(typedValue<int8_t>(i, j, k));
+    case SampleType::UInt16:
+      return static_cast<float>(typedValue<uint16_t>(i, j, k));
+    case SampleType::Int16:
+      return static_cast<float>(typedValue<int16_t>(i, j, k));
+    case SampleType::UInt32:
+      return static_cast<float>(typedValue<uint32_t>(i, j, k));
+    case SampleType::Int32:
+      return static_cast<float>(typedValue<int32_t>(i, j, k));
+    case SampleType::Float32:
+      return typedValue<float>(i, j, k);
+    case SampleType::Float64:
+      return static_cast<float>(typedValue<double>(i, j, k));
   }
   return 0;
 }
@@ -110,7 +127,7 @@ inline std::string zlibBytes(const std::string& bytes) {
 
 // Reads the whole volume in slabs of `slabSlices` and checks every value against `expected`.
 inline void expectValues(VolumeSource& source, int64_t slabSlices,
-                  const std::function<float(int64_t, int64_t, int64_t)>& expected) {
+                         const std::function<float(int64_t, int64_t, int64_t)>& expected) {
   const auto& dims = source.info().dims;
   for (int64_t first = 0; first < dims[2]; first += slabSlices) {
     const int64_t count = std::min(slabSlices, dims[2] - first);
@@ -143,8 +160,8 @@ inline void expectErrorMentioning(F&& call, const std::string& mention) {
   }
 }
 
-inline constexpr SampleType kAllTypes[] = {SampleType::UInt8,  SampleType::Int8,    SampleType::UInt16,
-                                    SampleType::Int16,  SampleType::UInt32,  SampleType::Int32,
-                                    SampleType::Float32, SampleType::Float64};
+inline constexpr SampleType kAllTypes[] = {
+    SampleType::UInt8,  SampleType::Int8,  SampleType::UInt16,  SampleType::Int16,
+    SampleType::UInt32, SampleType::Int32, SampleType::Float32, SampleType::Float64};
 
 }  // namespace octoray::formats_test

@@ -46,8 +46,8 @@ TEST(RawVolume, EveryTypeAndByteOrderRoundTripsExactly) {
     for (bool bigEndian : {false, true}) {
       for (const auto& dims : sizes) {
         const uint64_t headerBytes = dims[0] == 33 ? 13 : 0;
-        const auto file = dir / fmt::format("v{}_{}_{}.raw", static_cast<int>(type), bigEndian,
-                                            dims[0]);
+        const auto file =
+            dir / fmt::format("v{}_{}_{}.raw", static_cast<int>(type), bigEndian, dims[0]);
         writeFile(file, std::string(headerBytes, 'H') + encodeAs(type, dims, bigEndian));
         RawOptions options;
         options.dims = dims;
@@ -65,9 +65,8 @@ TEST(RawVolume, EveryTypeAndByteOrderRoundTripsExactly) {
         EXPECT_EQ(info.patientFromIndex.m[0][3], -10);
         SCOPED_TRACE(file.string());
         for (int64_t slab : {1, 2, 3, 1000}) {
-          expectValues(*source, slab, [&](int64_t i, int64_t j, int64_t k) {
-            return expectedAs(type, i, j, k);
-          });
+          expectValues(*source, slab,
+                       [&](int64_t i, int64_t j, int64_t k) { return expectedAs(type, i, j, k); });
         }
       }
     }
@@ -153,8 +152,8 @@ TEST(NrrdFormat, AttachedObliqueBigEndianShort) {
     EXPECT_EQ(info.format, "nrrd");
     EXPECT_EQ(info.description, file.filename().string());
     EXPECT_TRUE(info.integerValues);
-    const Mat4 expected = Mat4::fromColumns({0.6, 0.8, 0}, {-1.6, 1.2, 0}, {0, 0, 2.5},
-                                            {10, -20, 30.5});
+    const Mat4 expected =
+        Mat4::fromColumns({0.6, 0.8, 0}, {-1.6, 1.2, 0}, {0, 0, 2.5}, {10, -20, 30.5});
     expectAffineNear(info.patientFromIndex, expected, 1e-12);
     expectValues(*source, 2, [](int64_t i, int64_t j, int64_t k) {
       return static_cast<float>(typedValue<int16_t>(i, j, k));
@@ -173,7 +172,8 @@ TEST(NrrdFormat, RasSpaceIsConvertedToLps) {
   expectAffineNear(source->info().patientFromIndex,
                    Mat4::fromColumns({-1, 0, 0}, {0, -2, 0}, {0, 0, 3}, {-5, -6, 7}), 1e-12);
   EXPECT_FALSE(source->info().integerValues);
-  expectValues(*source, 1, [](int64_t i, int64_t j, int64_t k) { return typedValue<float>(i, j, k); });
+  expectValues(*source, 1,
+               [](int64_t i, int64_t j, int64_t k) { return typedValue<float>(i, j, k); });
 }
 
 TEST(NrrdFormat, DetachedGzipDataReadsForwardAndBackward) {
@@ -196,14 +196,13 @@ TEST(NrrdFormat, TruncatedDataAndBadHeadersThrow) {
   const auto dir = test::freshTempDir("nrrd_bad");
   const std::array<int64_t, 3> dims{16, 16, 4};
   writeFile(dir / "short.raw", std::string(100, '\0'));
-  writeFile(dir / "v.nhdr", nrrdHeader("short", dims,
-                                       "endian: little\nencoding: raw\ndata file: short.raw\n"));
-  expectErrorMentioning([&] { openNrrd((dir / "v.nhdr").string()); },
-                        (dir / "short.raw").string());
+  writeFile(dir / "v.nhdr",
+            nrrdHeader("short", dims, "endian: little\nencoding: raw\ndata file: short.raw\n"));
+  expectErrorMentioning([&] { openNrrd((dir / "v.nhdr").string()); }, (dir / "short.raw").string());
   // gzip data cut in half: found when the slab is read, naming the file.
   writeFile(dir / "cut.gz", gzipBytes(encode<int16_t>(dims, false)).substr(0, 200));
-  writeFile(dir / "cut.nhdr", nrrdHeader("short", dims,
-                                         "endian: little\nencoding: gzip\ndata file: cut.gz\n"));
+  writeFile(dir / "cut.nhdr",
+            nrrdHeader("short", dims, "endian: little\nencoding: gzip\ndata file: cut.gz\n"));
   expectErrorMentioning(
       [&] {
         auto source = openNrrd((dir / "cut.nhdr").string());
@@ -215,8 +214,10 @@ TEST(NrrdFormat, TruncatedDataAndBadHeadersThrow) {
   EXPECT_THROW(openNrrd((dir / "junk.nrrd").string()), Error);
   writeFile(dir / "type.nrrd", nrrdHeader("complex", dims, "encoding: raw\n\n"));
   EXPECT_THROW(openNrrd((dir / "type.nrrd").string()), Error);
-  writeFile(dir / "vec.nrrd", "NRRD0004\ntype: float\ndimension: 4\nsizes: 3 4 4 4\n"
-                              "encoding: raw\n\n" + std::string(3 * 64 * 4, '\0'));
+  writeFile(dir / "vec.nrrd",
+            "NRRD0004\ntype: float\ndimension: 4\nsizes: 3 4 4 4\n"
+            "encoding: raw\n\n" +
+                std::string(3 * 64 * 4, '\0'));
   EXPECT_THROW(openNrrd((dir / "vec.nrrd").string()), Error);
   writeFile(dir / "empty.nrrd", "");
   EXPECT_THROW(openNrrd((dir / "empty.nrrd").string()), Error);
@@ -226,22 +227,24 @@ TEST(NrrdFormat, TruncatedDataAndBadHeadersThrow) {
 
 std::string metaHeader(const std::array<int64_t, 3>& dims, const std::string& type,
                        const std::string& extra, const std::string& dataFile) {
-  return fmt::format("ObjectType = Image\nNDims = 3\nBinaryData = True\n{}"
-                     "DimSize = {} {} {}\nElementType = {}\nElementDataFile = {}\n",
-                     extra, dims[0], dims[1], dims[2], type, dataFile);
+  return fmt::format(
+      "ObjectType = Image\nNDims = 3\nBinaryData = True\n{}"
+      "DimSize = {} {} {}\nElementType = {}\nElementDataFile = {}\n",
+      extra, dims[0], dims[1], dims[2], type, dataFile);
 }
 
 TEST(MetaImageFormat, LocalObliqueMsbShort) {
   const auto dir = test::freshTempDir("meta_local");
   const std::array<int64_t, 3> dims{7, 5, 3};
   const double c = 0.8, s = 0.6;
-  writeFile(dir / "v.mha",
-            metaHeader(dims, "MET_SHORT",
-                       fmt::format("BinaryDataByteOrderMSB = True\nTransformMatrix = {} {} 0 {} {} 0 "
-                                   "0 0 1\nOffset = -1.5 2.5 100\nElementSpacing = 0.5 0.25 3\n",
-                                   c, s, -s, c),
-                       "LOCAL") +
-                encode<int16_t>(dims, true));
+  writeFile(
+      dir / "v.mha",
+      metaHeader(dims, "MET_SHORT",
+                 fmt::format("BinaryDataByteOrderMSB = True\nTransformMatrix = {} {} 0 {} {} 0 "
+                             "0 0 1\nOffset = -1.5 2.5 100\nElementSpacing = 0.5 0.25 3\n",
+                             c, s, -s, c),
+                 "LOCAL") +
+          encode<int16_t>(dims, true));
   auto source = openMetaImage((dir / "v.mha").string());
   const VolumeInfo& info = source->info();
   EXPECT_EQ(info.dims, dims);
@@ -274,8 +277,7 @@ TEST(MetaImageFormat, DetachedAndCompressedData) {
 
   // HeaderSize = -1: the samples are the last bytes of the data file.
   writeFile(dir / "tail.raw", std::string(37, '#') + encode<float>(dims, false));
-  writeFile(dir / "tail.mhd",
-            metaHeader(dims, "MET_FLOAT", "HeaderSize = -1\n", "tail.raw"));
+  writeFile(dir / "tail.mhd", metaHeader(dims, "MET_FLOAT", "HeaderSize = -1\n", "tail.raw"));
   expectValues(*openMetaImage((dir / "tail.mhd").string()), 5, floats);
 }
 
@@ -285,8 +287,8 @@ TEST(MetaImageFormat, BadInputsThrow) {
   writeFile(dir / "short.raw", std::string(10, '\0'));
   writeFile(dir / "v.mhd", metaHeader(dims, "MET_SHORT", "", "short.raw"));
   expectErrorMentioning([&] { openMetaImage((dir / "v.mhd").string()); }, "short.raw");
-  writeFile(dir / "rgb.mhd", metaHeader(dims, "MET_UCHAR", "ElementNumberOfChannels = 3\n",
-                                        "short.raw"));
+  writeFile(dir / "rgb.mhd",
+            metaHeader(dims, "MET_UCHAR", "ElementNumberOfChannels = 3\n", "short.raw"));
   EXPECT_THROW(openMetaImage((dir / "rgb.mhd").string()), Error);
   writeFile(dir / "junk.mha", "\x89PNG garbage\n\x00\x01");
   EXPECT_THROW(openMetaImage((dir / "junk.mha").string()), Error);

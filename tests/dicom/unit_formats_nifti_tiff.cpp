@@ -4,12 +4,12 @@
 
 #include <gtest/gtest.h>
 
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <vtkMatrix4x4.h>
 #include <vtkNIFTIImageHeader.h>
 #include <vtkNIFTIImageReader.h>
 #include <vtkNew.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include <filesystem>
 #include <random>
@@ -63,7 +63,8 @@ float integerRamp(int64_t i, int64_t j, int64_t k) {
   return static_cast<float>(i - 3 * j + 100 * k - 500);
 }
 float fractionalRamp(int64_t i, int64_t j, int64_t k) {
-  return static_cast<float>(i) * 0.25f - static_cast<float>(k) * 1.5f + static_cast<float>(j) * 1e-3f;
+  return static_cast<float>(i) * 0.25f - static_cast<float>(k) * 1.5f +
+         static_cast<float>(j) * 1e-3f;
 }
 
 // LPS: a rotation about the patient z axis (0.6/0.8) with anisotropic spacing.
@@ -201,9 +202,8 @@ TEST(NiftiFormat, QformOnlyFileWithFlippedSlicesAndScaling) {
   patchHeader<float>(file, 116, -1.0f);  // scl_inter
   auto scaled = openNifti(file.string());
   EXPECT_TRUE(scaled->info().integerValues);
-  expectValues(*scaled, 7, [](int64_t i, int64_t j, int64_t k) {
-    return 2.0f * integerRamp(i, j, k) - 1.0f;
-  });
+  expectValues(*scaled, 7,
+               [](int64_t i, int64_t j, int64_t k) { return 2.0f * integerRamp(i, j, k) - 1.0f; });
   patchHeader<float>(file, 112, 0.5f);
   EXPECT_FALSE(openNifti(file.string())->info().integerValues);
 }
@@ -248,7 +248,8 @@ TEST(TiffStack, FolderOfPagesInNaturalNameOrder) {
   const auto dir = test::freshTempDir("tiff_folder");
   // Slice k is stored under the k-th name in natural order, not in plain string order.
   const char* names[] = {"slice1.tif", "slice2.tif", "slice9.tiff", "slice10.tif", "slice011.TIF"};
-  for (int k = 0; k < 5; ++k) ASSERT_TRUE(cv::imwrite((dir / names[k]).string(), page16(21, 13, k)));
+  for (int k = 0; k < 5; ++k)
+    ASSERT_TRUE(cv::imwrite((dir / names[k]).string(), page16(21, 13, k)));
   auto source = openTiffStack(dir.string(), {0.5, 0.5, 2});
   EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{21, 13, 5}));
   EXPECT_EQ(source->info().format, "tiff");
@@ -278,7 +279,8 @@ TEST(TiffStack, MultiPageFloatFile) {
 
 TEST(TiffStack, ColourAndMismatchedPagesThrowNamingTheFile) {
   const auto dir = test::freshTempDir("tiff_bad");
-  ASSERT_TRUE(cv::imwrite((dir / "colour.tif").string(), cv::Mat(4, 4, CV_8UC3, cv::Scalar(1, 2, 3))));
+  ASSERT_TRUE(
+      cv::imwrite((dir / "colour.tif").string(), cv::Mat(4, 4, CV_8UC3, cv::Scalar(1, 2, 3))));
   expectErrorMentioning([&] { openTiffStack((dir / "colour.tif").string()); }, "colour.tif");
 
   const auto folder = dir / "mixed";
@@ -312,8 +314,10 @@ TEST(FormatsOpenVolume, DispatchesByExtensionFolderAndRawOption) {
                                         "endian: little\nencoding: raw\n\n") +
                                 encode<int16_t>(dims, false));
   EXPECT_EQ(openVolume((dir / "v.NRRD").string())->info().format, "nrrd");
-  writeFile(dir / "v.mha", "NDims = 3\nDimSize = 12 5 4\nElementType = MET_SHORT\n"
-                           "ElementDataFile = LOCAL\n" + encode<int16_t>(dims, false));
+  writeFile(dir / "v.mha",
+            "NDims = 3\nDimSize = 12 5 4\nElementType = MET_SHORT\n"
+            "ElementDataFile = LOCAL\n" +
+                encode<int16_t>(dims, false));
   EXPECT_EQ(openVolume((dir / "v.mha").string())->info().format, "metaimage");
   FunctionSource source(dims, Mat4::identity(), true, integerRamp);
   exportNifti(source, (dir / "v.nii.gz").string());
@@ -340,8 +344,8 @@ TEST(FormatsOpenVolume, MissingUnknownAndGarbageInputsThrow) {
   expectErrorMentioning([&] { openVolume((dir / "notes.txt").string()); }, "notes.txt");
 
   std::mt19937 random(1234);
-  for (const char* ext : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".tif",
-                          ".tiff", ".dcm", ""}) {
+  for (const char* ext :
+       {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".hdr", ".tif", ".tiff", ".dcm", ""}) {
     for (std::size_t size : {0u, 3u, 64u, 348u, 4096u}) {
       std::string bytes(size, '\0');
       for (char& c : bytes) c = static_cast<char>(random());
