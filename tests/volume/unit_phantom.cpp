@@ -1,0 +1,261 @@
+// The phantom is a pure function of (index, seed): slabs in any order and size agree, seeds
+// change only the noise, values are integer HU in range, the anatomy has plausible tissue
+// fractions, and the NRRD it writes reads back exactly through openVolume.
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <vector>
+
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/volume/phantom.h"
+#include "test_paths.h"
+
+namespace octoray::volume {
+namespace {
+
+PhantomOptions optionsFor(std::array<int64_t, 3> dims, uint64_t seed = 1) {
+  PhantomOptions options;
+  options.dims = dims;
+  options.seed = seed;
+  return options;
+}
+
+std::vector<float> readAll(VolumeSource& source) {
+  std::vector<float> values(static_cast<std::size_t>(source.info().sampleCount()));
+  source.readSlab(0, source.info().dims[2], values);
+  return values;
+}
+
+// Reads the volume in slabs of `slabSlices`, last slab first.
+std::vector<float> readBackwards(VolumeSource& source, int64_t slabSlices) {
+  const VolumeInfo& info = source.info();
+  std::vector<float> values(static_cast<std::size_t>(info.sampleCount()));
+  const int64_t slabs = (info.dims[2] + slabSlices - 1) / slabSlices;
+  for (int64_t s = slabs - 1; s >= 0; --s) {
+    const int64_t first = s * slabSlices, count = std::min(slabSlices, info.dims[2] - first);
+    source.readSlab(first, count,
+                    std::span<float>(values).subspan(static_cast<std::size_t>(first * info.sliceSamples()),
+                                                     static_cast<std::size_t>(count * info.sliceSamples())));
+  }
+  return values;
+}
+
+TEST(Phantom, DescribesItselfAsCenteredCtInHu) {
+  PhantomOptions options = optionsFor({33, 17, 5}, 42);
+  options.spacingMm = {0.7, 0.8, 1.25};
+  const auto source = makePhantom(options);
+  const VolumeInfo& info = source->info();
+  EXPECT_EQ(info.dims, (std::array<int64_t, 3>{33, 17, 5}));
+  EXPECT_EQ(info.format, "phantom");
+  EXPECT_EQ(info.modality, "CT");
+  EXPECT_EQ(info.unit, "HU");
+  EXPECT_TRUE(info.integerValues);
+  EXPECT_EQ(info.description, "octoray phantom seed 42");
+  const Vec3 spacing = info.spacingMm();
+  EXPECT_DOUBLE_EQ(spacing.x, 0.7);
+  EXPECT_DOUBLE_EQ(spacing.y, 0.8);
+  EXPECT_DOUBLE_EQ(spacing.z, 1.25);
+  // The centre of the index grid maps to the patient origin.
+  const Vec3 centre = info.patientFromIndex.transformPoint({16, 8, 2});
+  EXPECT_NEAR(centre.x, 0, 1e-12);
+  EXPECT_NEAR(centre.y, 0, 1e-12);
+  EXPECT_NEAR(centre.z, 0, 1e-12);
+}
+
+TEST(Phantom, SameSeedSameValuesOtherSeedOtherNoiseOnly) {
+  const std::array<int64_t, 3> dims{48, 40, 36};
+  const auto first = readAll(*makePhantom(optionsFor(dims, 7)));
+  const auto again = readAll(*makePhantom(optionsFor(dims, 7)));
+  const auto other = readAll(*makePhantom(optionsFor(dims, 8)));
+  EXPECT_EQ(first, again);
+  std::size_t differing = 0;
+  float largest = 0;
+  for (std::size_t n = 0; n < first.size(); ++n) {
+    differing += first[n] != other[n] ? 1 : 0;
+    largest = std::max(largest, std::abs(first[n] - other[n]));
+  }
+  // The noise is within +-11 HU: seeds move values by at most 22, and move most of them.
+  EXPECT_LE(largest, 22.0f);
+  EXPECT_GT(static_cast<double>(differing), 0.8 * static_cast<double>(first.size()));
+}
+
+TEST(Phantom, SlabsInAnyOrderSizeAndThreadCountAgree) {
+  const std::array<int64_t, 3> dims{70, 50, 29};
+  const auto whole = readAll(*makePhantom(optionsFor(dims)));
+  for (const int64_t slabSlices : {1, 3, 7, 29}) {
+    const auto source = makePhantom(optionsFor(dims));
+    EXPECT_EQ(readBackwards(*source, slabSlices), whole) << "slabs of " << slabSlices;
+  }
+  const tbb::global_control oneThread(tbb::global_control::max_allowed_parallelism, 1);
+  EXPECT_EQ(readAll(*makePhantom(optionsFor(dims))), whole);
+}
+
+TEST(Phantom, ValuesAreIntegerHuInRange) {
+  for (const auto& dims : {std::array<int64_t, 3>{64, 64, 64}, std::array<int64_t, 3>{96, 80, 40}}) {
+    for (const float v : readAll(*makePhantom(optionsFor(dims, 3)))) {
+      ASSERT_EQ(v, std::round(v));
+      ASSERT_GE(v, -1024.0f);
+      ASSERT_LE(v, 3071.0f);
+    }
+  }
+}
+
+TEST(Phantom, TinyAndDegenerateSizesWork) {
+  for (const auto& dims : {std::array<int64_t, 3>{1, 1, 1}, std::array<int64_t, 3>{33, 17, 5},
+                           std::array<int64_t, 3>{1, 1, 200}, std::array<int64_t, 3>{200, 1, 1},
+                           std::array<int64_t, 3>{2, 3, 1}}) {
+    const auto source = makePhantom(optionsFor(dims));
+    const auto values = readAll(*source);
+    EXPECT_EQ(readBackwards(*source, 2), values);
+    for (const float v : values) {
+      EXPECT_GE(v, -1024.0f);
+      EXPECT_LE(v, 3071.0f);
+    }
+  }
+  // A single voxel lies at the centre of the head: brain-like soft tissue.
+  const auto single = readAll(*makePhantom(optionsFor({1, 1, 1})));
+  EXPECT_GE(single[0], -20.0f);
+  EXPECT_LE(single[0], 70.0f);
+}
+
+TEST(Phantom, RejectsBadOptionsAndSlabs) {
+  EXPECT_THROW(makePhantom(optionsFor({0, 4, 4})), Error);
+  EXPECT_THROW(makePhantom(optionsFor({4, -1, 4})), Error);
+  PhantomOptions badSpacing = optionsFor({4, 4, 4});
+  badSpacing.spacingMm = {0.5, 0, 0.5};
+  EXPECT_THROW(makePhantom(badSpacing), Error);
+  badSpacing.spacingMm = {0.5, NAN, 0.5};
+  EXPECT_THROW(makePhantom(badSpacing), Error);
+
+  const auto source = makePhantom(optionsFor({8, 8, 8}));
+  std::vector<float> slab(64 * 2);
+  EXPECT_THROW(source->readSlab(7, 2, slab), Error);
+  EXPECT_THROW(source->readSlab(-1, 2, slab), Error);
+  EXPECT_THROW(source->readSlab(0, 1, slab), Error);  // buffer of the wrong size
+  EXPECT_NO_THROW(source->readSlab(6, 2, slab));
+}
+
+TEST(Phantom, HasPlausibleHeadAnatomyAt128) {
+  const std::array<int64_t, 3> dims{128, 128, 128};
+  const auto values = readAll(*makePhantom(optionsFor(dims)));
+  const auto at = [&](int64_t i, int64_t j, int64_t k) {
+    return values[static_cast<std::size_t>(i + dims[0] * (j + dims[1] * k))];
+  };
+  std::size_t air = 0, fat = 0, soft = 0, csf = 0, brain = 0, contrast = 0, bone = 0, dense = 0;
+  for (const float v : values) {
+    air += v < -850 ? 1 : 0;
+    fat += v >= -120 && v <= -60 ? 1 : 0;
+    soft += v >= -20 && v <= 70 ? 1 : 0;
+    csf += v >= -6 && v <= 16 ? 1 : 0;
+    brain += v >= 18 && v <= 52 ? 1 : 0;
+    contrast += v >= 180 && v <= 360 ? 1 : 0;
+    bone += v >= 400 ? 1 : 0;
+    dense += v >= 1200 ? 1 : 0;
+  }
+  const auto fraction = [&](std::size_t count) {
+    return static_cast<double>(count) / static_cast<double>(values.size());
+  };
+  // Measured at 128^3: air 0.59, soft 0.33, brain 0.29, CSF 0.030, fat 0.024, contrast 0.007,
+  // bone 0.044, dense bone 0.024. The bounds leave room for changes to the anatomy.
+  EXPECT_GT(fraction(air), 0.40);  // air around the head
+  EXPECT_LT(fraction(air), 0.70);
+  EXPECT_GT(fraction(soft), 0.25);  // skin, muscle, brain
+  EXPECT_GT(fraction(brain), 0.15);
+  EXPECT_GT(fraction(csf), 0.01);  // ventricles, sulci, subarachnoid space
+  EXPECT_GT(fraction(fat), 0.01);
+  EXPECT_GT(fraction(contrast), 0.002);  // vessels (and some trabecular bone)
+  EXPECT_GT(fraction(bone), 0.02);
+  EXPECT_LT(fraction(bone), 0.15);
+  EXPECT_GT(fraction(dense), 0.01);  // cortical tables
+
+  // Corners are air; the centre is brain; a column down from the vertex meets air, scalp,
+  // the skull, then brain.
+  EXPECT_LT(at(0, 0, 0), -980.0f);
+  EXPECT_LT(at(127, 127, 127), -980.0f);
+  EXPECT_GE(at(64, 64, 64), -20.0f);
+  EXPECT_LE(at(64, 64, 64), 70.0f);
+  int stage = 0;  // 0 air, 1 scalp, 2 skull, 3 brain
+  for (int64_t k = dims[2] - 1; k >= 0 && stage < 3; --k) {
+    const float v = at(64, 67, k);
+    if (stage == 0 && v > -200) stage = 1;
+    if (stage == 1 && v > 1000) stage = 2;
+    if (stage == 2 && v >= 18 && v <= 52) stage = 3;
+  }
+  EXPECT_EQ(stage, 3);
+}
+
+TEST(PhantomNrrd, RoundTripsExactlyThroughOpenVolume) {
+  const auto dir = test::freshTempDir("phantom_nrrd_round_trip");
+  PhantomOptions options = optionsFor({40, 36, 24}, 5);
+  options.spacingMm = {0.7, 0.8, 1.25};
+  const std::string path = (dir / "head.nhdr").string();
+  std::vector<int64_t> progress;
+  writePhantomNrrd(options, path, [&](int64_t done, int64_t total) {
+    EXPECT_EQ(total, 24);
+    progress.push_back(done);
+  });
+  ASSERT_FALSE(progress.empty());
+  EXPECT_TRUE(std::is_sorted(progress.begin(), progress.end()));
+  EXPECT_EQ(progress.back(), 24);
+  EXPECT_EQ(std::filesystem::file_size(dir / "head.raw"), 40u * 36 * 24 * 2);
+  // Nothing but the header and the data is left behind.
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), {}), 2);
+
+  const auto phantom = makePhantom(options);
+  const auto read = openVolume(path);
+  const VolumeInfo& expected = phantom->info();
+  const VolumeInfo& got = read->info();
+  EXPECT_EQ(got.dims, expected.dims);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 4; ++c) {
+      EXPECT_NEAR(got.patientFromIndex.m[r][c], expected.patientFromIndex.m[r][c], 1e-9)
+          << "patientFromIndex[" << r << "][" << c << "]";
+    }
+  }
+  EXPECT_EQ(readAll(*read), readAll(*phantom));
+}
+
+TEST(PhantomNrrd, StreamsSeveralSlabs) {
+  // 2048 x 2048 slices: the writer uses slabs of two slices, so three slices take two slabs.
+  const auto dir = test::freshTempDir("phantom_nrrd_slabs");
+  const PhantomOptions options = optionsFor({2048, 2048, 3}, 9);
+  const std::string path = (dir / "wide.nrrd").string();
+  std::vector<int64_t> progress;
+  writePhantomNrrd(options, path, [&](int64_t done, int64_t) { progress.push_back(done); });
+  EXPECT_EQ(progress, (std::vector<int64_t>{2, 3}));
+  const auto read = openVolume(path);
+  EXPECT_EQ(readAll(*read), readAll(*makePhantom(options)));
+}
+
+TEST(PhantomNrrd, FailuresNameTheFileAndLeaveNothing) {
+  const auto dir = test::freshTempDir("phantom_nrrd_failures");
+  const PhantomOptions options = optionsFor({16, 16, 4});
+  try {
+    writePhantomNrrd(options, (dir / "head.mhd").string());
+    FAIL() << "a header name without .nhdr/.nrrd was accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), (dir / "head.mhd").string());
+  }
+  const std::string missing = (dir / "no_such_folder" / "head.nhdr").string();
+  try {
+    writePhantomNrrd(options, missing);
+    FAIL() << "writing into a missing folder succeeded";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("head.raw"), std::string::npos) << e.what();
+  }
+  // A header name that is a folder: the data is written, the header rename fails, and both
+  // the temporary files and the renamed data are removed.
+  std::filesystem::create_directory(dir / "taken.nhdr");
+  std::filesystem::create_directory(dir / "taken.nhdr" / "inside");
+  EXPECT_THROW(writePhantomNrrd(options, (dir / "taken.nhdr").string()), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "taken.raw"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "taken.raw.partial"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "taken.nhdr.partial"));
+}
+
+}  // namespace
+}  // namespace octoray::volume
