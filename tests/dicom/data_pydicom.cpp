@@ -212,7 +212,12 @@ std::optional<double> compare(const dicom::DecodedImage& ours, int frames, int r
   }
   double worst = 0;
   for (std::size_t i = 0; i < values.size(); ++i) {
-    worst = std::max(worst, std::abs(ours.stored[i] - values[i]));
+    const double difference = std::abs(ours.stored[i] - values[i]);
+    if (difference > 0 && worst == 0) {
+      why = fmt::format("first difference at sample {}: ours {}, reference {}", i,
+                        ours.stored[i], values[i]);
+    }
+    worst = std::max(worst, difference);
   }
   return worst;
 }
@@ -292,7 +297,7 @@ TEST(PydicomTestFiles, DecodeAgreesWithPydicomOrRejectsCleanly) {
           result = fmt::format("lossy, max difference {}", *worst);
         } else if (worst) {
           ADD_FAILURE() << "lossless syntax " << r.syntax << " but values differ by up to "
-                        << *worst;
+                        << *worst << "; " << why;
           result = fmt::format("DIFFERS by up to {}", *worst);
         } else {
           result = "SHAPE DIFFERS: " + why;
