@@ -15,13 +15,13 @@
 namespace octoray::volume {
 
 struct BrickCacheStats {
-  uint64_t hits = 0;         // find() calls that returned a brick
-  uint64_t misses = 0;       // find() calls that returned nullptr
-  uint64_t evictions = 0;    // bricks dropped to stay under the budget
-  uint64_t rejected = 0;     // insert() calls refused: the brick alone exceeds the budget
-  uint64_t bytes = 0;        // Brick::byteSize() summed over cached bricks
+  uint64_t hits = 0;       // find() calls that returned a brick
+  uint64_t misses = 0;     // find() calls that returned nullptr
+  uint64_t evictions = 0;  // bricks dropped to stay under the budget
+  uint64_t rejected = 0;   // insert() calls refused: the brick alone exceeds the budget
+  uint64_t bytes = 0;      // Brick::byteSize() summed over cached bricks
   uint64_t budgetBytes = 0;
-  std::size_t count = 0;     // cached bricks
+  std::size_t count = 0;  // cached bricks
 };
 
 class BrickCache {
