@@ -47,7 +47,21 @@ DecodedImage decodeDicomFile(const std::string& path) {
   detail::quietGdcm();
   if (!std::filesystem::is_regular_file(path)) throw Error(path, "no such file");
   detail::vetWithGdcm(path);
-  return detail::decodeVettedDicomFile(path);
+  DecodedImage image = detail::decodeVettedDicomFile(path);
+  // GDCM pads truncated native pixel data silently: compare with what the file holds.
+  const gdcm::TransferSyntax ts =
+      gdcm::TransferSyntax::GetTSType(image.format.transferSyntaxUid.c_str());
+  // Deflated data sets compress everything after the meta header: no length to compare.
+  if (!ts.IsEncapsulated() && ts != gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) {
+    const std::size_t offset = detail::pixelValueOffset(path);
+    const uint64_t fileBytes = std::filesystem::file_size(path);
+    const uint64_t needed = (image.stored.size() * static_cast<uint64_t>(image.format.bitsAllocated) + 7) / 8;
+    if (offset == std::size_t(-1) || offset > fileBytes || fileBytes - offset < needed) {
+      throw Error(path, fmt::format("pixel data holds {} bytes, {} needed (file truncated)",
+                                    offset > fileBytes ? 0 : fileBytes - offset, needed));
+    }
+  }
+  return image;
 }
 
 DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
@@ -73,6 +87,23 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   f.bitsStored = pf.GetBitsStored();
   f.highBit = pf.GetHighBit();
   f.pixelSigned = pf.GetPixelRepresentation() == 1;
+  // The data set's own BitsStored/HighBit/PixelRepresentation are the standard's truth;
+  // GDCM replaces them with the JPEG 2000 codestream's precision ("correcting").
+  {
+    const gdcm::File& file = reader.GetFile();
+    const gdcm::DataSet& ds = file.GetDataSet();
+    const auto stored = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0101));
+    const auto high = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0102));
+    const auto representation = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0103));
+    if (stored && high && *stored >= 1 && *stored <= f.bitsAllocated && *high < f.bitsAllocated &&
+        *high >= *stored - 1) {
+      f.bitsStored = *stored;
+      f.highBit = *high;
+    }
+    if (representation && (*representation == 0 || *representation == 1)) {
+      f.pixelSigned = *representation == 1;
+    }
+  }
   f.floatPixels = pf.GetScalarType() == gdcm::PixelFormat::FLOAT32 ||
                   pf.GetScalarType() == gdcm::PixelFormat::FLOAT64;
   const char* photometric = gdcm::PhotometricInterpretation::GetPIString(
@@ -87,10 +118,10 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   if (f.rows <= 0 || f.columns <= 0 || f.frames <= 0) {
     throw Error(path, "image has zero rows, columns or frames");
   }
-  const bool validBits = f.bitsAllocated == 8 || f.bitsAllocated == 16 || f.bitsAllocated == 32 ||
-                         (f.floatPixels && f.bitsAllocated == 64);
+  const bool validBits = f.bitsAllocated == 1 || f.bitsAllocated == 8 || f.bitsAllocated == 16 ||
+                         f.bitsAllocated == 32 || (f.floatPixels && f.bitsAllocated == 64);
   if (!validBits) {
-    throw Error(path, fmt::format("unsupported BitsAllocated {} (8, 16 or 32 expected)",
+    throw Error(path, fmt::format("unsupported BitsAllocated {} (1, 8, 16 or 32 expected)",
                                   f.bitsAllocated));
   }
   if (!f.floatPixels && (f.bitsStored < 1 || f.bitsStored > f.bitsAllocated ||
@@ -112,8 +143,8 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   }
 
   const std::size_t samples = out.frameSamples() * static_cast<std::size_t>(f.frames);
-  const std::size_t bytesPerSample = static_cast<std::size_t>(f.bitsAllocated) / 8;
-  const std::size_t expected = samples * bytesPerSample;
+  // 1-bit samples are packed continuously across frames, least significant bit first.
+  const std::size_t expected = (samples * static_cast<std::size_t>(f.bitsAllocated) + 7) / 8;
   const unsigned long length = image.GetBufferLength();
   if (length < expected) {
     throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
@@ -134,6 +165,10 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
                           ? static_cast<double>(loadLittleEndian<float>(p + 4 * i))
                           : loadLittleEndian<double>(p + 8 * i);
     }
+  } else if (f.bitsAllocated == 1) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out.stored[i] = (static_cast<unsigned char>(p[i / 8]) >> (i % 8)) & 1u;
+    }
   } else if (f.bitsAllocated == 8) {
     for (std::size_t i = 0; i < samples; ++i) {
       out.stored[i] = storedValueFromBits(static_cast<unsigned char>(p[i]), f);
@@ -143,8 +178,13 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
       out.stored[i] = storedValueFromBits(loadLittleEndian<uint16_t>(p + 2 * i), f);
     }
   } else {
+    // GDCM byte-swaps big-endian pixel data as 16-bit words: 32-bit values come out with
+    // their halves exchanged.
+    const bool halvesSwapped = ts == gdcm::TransferSyntax::ExplicitVRBigEndian;
     for (std::size_t i = 0; i < samples; ++i) {
-      out.stored[i] = storedValueFromBits(loadLittleEndian<uint32_t>(p + 4 * i), f);
+      uint32_t raw = loadLittleEndian<uint32_t>(p + 4 * i);
+      if (halvesSwapped) raw = (raw << 16) | (raw >> 16);
+      out.stored[i] = storedValueFromBits(raw, f);
     }
   }
   return out;

@@ -141,7 +141,8 @@ void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCoun
   const uint64_t fileBytes = std::filesystem::file_size(h.path, ec);
   if (ec) throw Error(h.path, "cannot read file size: " + ec.message());
   if (pixelValueOffset > fileBytes) throw Error(h.path, "file truncated before its pixel data");
-  if (file.GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) return;
+  const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
+  if (ts.IsEncapsulated() || ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return;
   const uint64_t bits = static_cast<uint64_t>(h.rows) * static_cast<uint64_t>(h.columns) *
                         static_cast<uint64_t>(frameCount) *
                         static_cast<uint64_t>(std::max(h.samplesPerPixel, 1)) *

@@ -1,6 +1,7 @@
 #include "gdcm_support.h"
 
 #include <fcntl.h>
+#include <gdcmImageReader.h>
 #include <gdcmReader.h>
 #include <gdcmSequenceOfItems.h>
 #include <sys/wait.h>
@@ -98,15 +99,14 @@ void vetWithGdcm(const std::string& path) {
     if (devNull >= 0) ::dup2(devNull, STDERR_FILENO);
     int code = 0;
     try {
-      gdcm::Reader header;
-      header.SetFileName(path.c_str());
-      const gdcm::Tag pixelData(0x7fe0, 0x0010);
-      if (!header.ReadUpToTag(pixelData, std::set<gdcm::Tag>{pixelData})) {
-        code = 1;
-      } else if (header.GetFile().GetHeader().GetDataSetTransferSyntax().IsEncapsulated()) {
-        gdcm::Reader full;  // encapsulated fragments are parsed only by a full read
-        full.SetFileName(path.c_str());
-        code = full.Read() ? 0 : 1;
+      // The image model, as decoding builds it: this parses every element, the pixel data
+      // fragments included, and the attributes GDCM derives the image from.
+      gdcm::ImageReader image;
+      image.SetFileName(path.c_str());
+      if (!image.Read()) {
+        gdcm::Reader plain;  // not an image: still parse it as the scanner will
+        plain.SetFileName(path.c_str());
+        code = plain.Read() ? 0 : 1;
       }
     } catch (...) {
       code = 1;
@@ -120,6 +120,14 @@ void vetWithGdcm(const std::string& path) {
   if (WIFSIGNALED(status)) {
     throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
   }
+}
+
+std::size_t pixelValueOffset(const std::string& path) {
+  gdcm::Reader reader;
+  reader.SetFileName(path.c_str());
+  const gdcm::Tag pixelData(0x7fe0, 0x0010);
+  if (!reader.ReadUpToTag(pixelData, std::set<gdcm::Tag>{pixelData})) return std::size_t(-1);
+  return reader.GetStreamCurrentPosition();
 }
 
 std::vector<gdcm::DataSet> sequenceItems(const gdcm::DataSet& ds, const gdcm::Tag& tag) {

@@ -30,6 +30,10 @@ void vetWithGdcm(const std::string& path);
 }  // namespace octoray::dicom::detail
 namespace octoray::dicom { struct DecodedImage; }
 namespace octoray::dicom::detail {
+// Where the pixel data value starts in the file (it is skipped, not read); size_t(-1) when
+// the file has no pixel data or cannot be parsed. Only call on vetted files.
+std::size_t pixelValueOffset(const std::string& path);
+
 // decodeDicomFile without vetting, for files scanDicom has already vetted.
 DecodedImage decodeVettedDicomFile(const std::string& path);
 
