@@ -11,14 +11,8 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <bit>
-#include <cerrno>
 #include <cmath>
-#include <cstdio>
-#include <cstring>
-#include <filesystem>
 #include <functional>
-#include <future>
 #include <numbers>
 #include <utility>
 #include <vector>
@@ -109,15 +103,16 @@ constexpr Ellipsoid kCranium{0, 0.06, 0.14, 0.72, 0.82, 0.78};
 constexpr double kDiploeInset = 0.014, kInnerTableInset = 0.044, kDuraInset = 0.056;
 constexpr double kCortexInset = 0.068, kWhiteInset = 0.115;
 
-constexpr Ellipsoid kDeepNuclei[] = {
-    {-0.09, 0.12, 0.08, 0.07, 0.10, 0.07},  {0.09, 0.12, 0.08, 0.07, 0.10, 0.07},    // thalami
-    {-0.20, -0.05, 0.10, 0.07, 0.12, 0.09}, {0.20, -0.05, 0.10, 0.07, 0.12, 0.09}};  // striata
+constexpr Ellipsoid kDeepNuclei[] = {{-0.09, 0.12, 0.08, 0.07, 0.10, 0.07},
+                                     {0.09, 0.12, 0.08, 0.07, 0.10, 0.07},  // thalami
+                                     {-0.20, -0.05, 0.10, 0.07, 0.12, 0.09},
+                                     {0.20, -0.05, 0.10, 0.07, 0.12, 0.09}};  // striata
 constexpr Ellipsoid kVentricles[] = {
     {-0.10, 0.05, 0.26, 0.06, 0.30, 0.07},  {0.10, 0.05, 0.26, 0.06, 0.30, 0.07},   // bodies
     {-0.09, -0.22, 0.20, 0.05, 0.10, 0.08}, {0.09, -0.22, 0.20, 0.05, 0.10, 0.08},  // frontal
     {-0.22, 0.20, 0.02, 0.04, 0.14, 0.05},  {0.22, 0.20, 0.02, 0.04, 0.14, 0.05},   // temporal
-    {0, 0.10, 0.08, 0.012, 0.12, 0.08},                                              // third
-    {0, 0.42, -0.22, 0.05, 0.04, 0.06}};                                             // fourth
+    {0, 0.10, 0.08, 0.012, 0.12, 0.08},                                             // third
+    {0, 0.42, -0.22, 0.05, 0.04, 0.06}};                                            // fourth
 
 // Face: maxillary sinuses in bony walls, frontal sinus, ethmoid cells, nasal cavity, orbits.
 constexpr Ellipsoid kMaxillarySinuses[] = {{-0.20, -0.55, -0.40, 0.12, 0.14, 0.14},
@@ -125,8 +120,8 @@ constexpr Ellipsoid kMaxillarySinuses[] = {{-0.20, -0.55, -0.40, 0.12, 0.14, 0.1
 constexpr double kSinusWall = 0.015;
 constexpr Ellipsoid kFrontalSinus{0, -0.72, 0.30, 0.12, 0.022, 0.07};
 constexpr Ellipsoid kEthmoidCells[] = {
-    {-0.08, -0.52, -0.05, 0.03, 0.04, 0.04}, {0.08, -0.52, -0.05, 0.03, 0.04, 0.04},
-    {-0.08, -0.44, -0.03, 0.03, 0.035, 0.04}, {0.08, -0.44, -0.03, 0.03, 0.035, 0.04},
+    {-0.08, -0.52, -0.05, 0.03, 0.04, 0.04},   {0.08, -0.52, -0.05, 0.03, 0.04, 0.04},
+    {-0.08, -0.44, -0.03, 0.03, 0.035, 0.04},  {0.08, -0.44, -0.03, 0.03, 0.035, 0.04},
     {-0.07, -0.60, -0.08, 0.025, 0.03, 0.035}, {0.07, -0.60, -0.08, 0.025, 0.03, 0.035}};
 constexpr CylinderZ kNasalCavity{0, -0.62, 0.06, 0.13, -0.56, -0.12};
 constexpr double kSeptumHalfWidth = 0.006;
@@ -147,9 +142,9 @@ constexpr double kVertebralCortexInset = 0.014;
 constexpr double kVertebraPeriod = 0.16, kDiscFraction = 0.22;
 constexpr CylinderZ kAirway{0, 0.02, 0.07, 0.05, -2, -0.45};
 
-constexpr double kBrainFoldPeriod = 0.22;       // normalised units
-constexpr double kTrabecularPeriod = 0.012;     // normalised units ...
-constexpr double kMinTrabecularVoxels = 6;      // ... but never finer than this many voxels
+constexpr double kBrainFoldPeriod = 0.22;    // normalised units
+constexpr double kTrabecularPeriod = 0.012;  // normalised units ...
+constexpr double kMinTrabecularVoxels = 6;   // ... but never finer than this many voxels
 
 // ---------------------------------------------------------------------------------------------
 // Tubes (vessels) along curved paths. A tube runs along one axis; its centre in the other two
@@ -166,7 +161,7 @@ struct TubePath {
 
 struct Tube {
   int axis = 2;
-  int64_t first = 0;                 // first voxel index along `axis`
+  int64_t first = 0;                    // first voxel index along `axis`
   std::vector<float> centreA, centreB;  // per voxel: the lower and the higher other axis
   float radius = 0;
   int32_t hu = 0;
@@ -196,12 +191,12 @@ std::vector<TubePath> vesselPaths() {
                        return std::pair{side * (0.17 - 0.15 * merge), 0.24 - 0.10 * merge};
                      }});
     // Middle cerebral arteries running laterally in the Sylvian fissure.
-    paths.push_back({0, side < 0 ? -0.56 : 0.2, side < 0 ? -0.2 : 0.56, 0.009, kArteryContrast,
-                     [](double x) {
-                       const double out = std::abs(x) - 0.2;
-                       return std::pair{0.019 + 0.04 * (std::sin(9 * std::abs(x)) - std::sin(1.8)),
-                                        0.069 + 0.05 * std::sin(14 * out) + 0.25 * out};
-                     }});
+    paths.push_back(
+        {0, side < 0 ? -0.56 : 0.2, side < 0 ? -0.2 : 0.56, 0.009, kArteryContrast, [](double x) {
+           const double out = std::abs(x) - 0.2;
+           return std::pair{0.019 + 0.04 * (std::sin(9 * std::abs(x)) - std::sin(1.8)),
+                            0.069 + 0.05 * std::sin(14 * out) + 0.25 * out};
+         }});
     // Anterior cerebral arteries curving forwards and up.
     paths.push_back({1, -0.45, 0.02, 0.008, kArteryContrast, [side](double y) {
                        const double along = (0.02 - y) / 0.47;
@@ -222,15 +217,17 @@ std::vector<TubePath> vesselPaths() {
                      }});
   }
   // Basilar artery.
-  paths.push_back({2, -0.45, -0.10, 0.012, kArteryContrast,
-                   [](double z) { return std::pair{0.01 * std::sin(8 * z), 0.14 - 0.05 * (z + 0.45)}; }});
+  paths.push_back({2, -0.45, -0.10, 0.012, kArteryContrast, [](double z) {
+                     return std::pair{0.01 * std::sin(8 * z), 0.14 - 0.05 * (z + 0.45)};
+                   }});
   // Superior sagittal sinus following the inner table of the skull.
   const double innerRy = kCranium.ry - kInnerTableInset, innerRz = kCranium.rz - kInnerTableInset;
-  paths.push_back({1, kCranium.cy - 0.95 * innerRy, kCranium.cy + 0.95 * innerRy, 0.016,
-                   kVeinContrast, [innerRy, innerRz](double y) {
-                     const double u = (y - kCranium.cy) / innerRy;
-                     return std::pair{0.0, kCranium.cz + innerRz * std::sqrt(std::max(0.0, 1 - u * u)) - 0.03};
-                   }});
+  paths.push_back(
+      {1, kCranium.cy - 0.95 * innerRy, kCranium.cy + 0.95 * innerRy, 0.016, kVeinContrast,
+       [innerRy, innerRz](double y) {
+         const double u = (y - kCranium.cy) / innerRy;
+         return std::pair{0.0, kCranium.cz + innerRz * std::sqrt(std::max(0.0, 1 - u * u)) - 0.03};
+       }});
   return paths;
 }
 
@@ -266,6 +263,12 @@ inline int32_t noiseHu(uint32_t h) {
   return (a - b) * 3 / 64;
 }
 
+// Branch-free select. Written with masks because GCC (with the default -ftrapping-math) will
+// not vectorise a conditional that guards a float comparison or conversion.
+inline int32_t pick(bool condition, int32_t ifTrue, int32_t ifFalse) {
+  return ifFalse ^ ((ifTrue ^ ifFalse) & -static_cast<int32_t>(condition));
+}
+
 // ---------------------------------------------------------------------------------------------
 // Per-axis tables.
 
@@ -283,12 +286,17 @@ struct GyroidTables {
   Row row(int64_t j, int64_t k) const {
     return {sine[0].data(), cosine[0].data(), cosine[1][j], sine[2][k], sine[1][j] * cosine[2][k]};
   }
+  // The mirror-image gyroid sin(y)cos(x) + sin(z)cos(y) + sin(x)cos(z).
+  Row mirroredRow(int64_t j, int64_t k) const {
+    return {sine[0].data(), cosine[0].data(), cosine[2][k], sine[1][j], sine[2][k] * cosine[1][j]};
+  }
 };
 
 // Voxel centres in normalised coordinates: n samples spread symmetrically over (-1, 1).
 std::vector<double> normalisedCoords(int64_t n) {
   std::vector<double> coords(static_cast<std::size_t>(n));
-  for (int64_t i = 0; i < n; ++i) coords[i] = (2.0 * static_cast<double>(i) + 1) / static_cast<double>(n) - 1;
+  for (int64_t i = 0; i < n; ++i)
+    coords[i] = (2.0 * static_cast<double>(i) + 1) / static_cast<double>(n) - 1;
   return coords;
 }
 
@@ -330,7 +338,7 @@ class HeadPhantom {
   std::array<int64_t, 3> dims_;
   uint64_t seed_;
   std::array<std::vector<double>, 3> coords_;
-  GyroidTables trabecular_, folds_;
+  GyroidTables trabecular_, folds_, fineFolds_;
   std::vector<Tube> tubes_;
   std::vector<uint8_t> discSlice_;  // per slice: 1 where the spine holds a disc
 };
@@ -343,7 +351,8 @@ HeadPhantom::HeadPhantom(const PhantomOptions& options) : dims_(options.dims), s
     const double trabecularVoxels =
         std::max(kMinTrabecularVoxels, kTrabecularPeriod * 0.5 * static_cast<double>(n));
     const double foldOmega = 2 * std::numbers::pi / kBrainFoldPeriod;
-    for (GyroidTables* tables : {&trabecular_, &folds_}) {
+    const double fineFoldOmega = foldOmega * std::numbers::phi;
+    for (GyroidTables* tables : {&trabecular_, &folds_, &fineFolds_}) {
       tables->sine[a].resize(static_cast<std::size_t>(n));
       tables->cosine[a].resize(static_cast<std::size_t>(n));
     }
@@ -354,6 +363,9 @@ HeadPhantom::HeadPhantom(const PhantomOptions& options) : dims_(options.dims), s
       const double f = foldOmega * coords_[a][i] + 1.3 * a;
       folds_.sine[a][i] = static_cast<float>(std::sin(f));
       folds_.cosine[a][i] = static_cast<float>(std::cos(f));
+      const double ff = fineFoldOmega * coords_[a][i] + 0.4 - 0.9 * a;
+      fineFolds_.sine[a][i] = static_cast<float>(std::sin(ff));
+      fineFolds_.cosine[a][i] = static_cast<float>(std::cos(ff));
     }
   }
   discSlice_.resize(static_cast<std::size_t>(dims_[2]));
@@ -386,7 +398,8 @@ HeadPhantom::HeadPhantom(const PhantomOptions& options) : dims_(options.dims), s
 
 std::pair<int64_t, int64_t> HeadPhantom::span(double centreX, double halfWidth) const {
   if (halfWidth < 0) return {0, 0};
-  // x_i = (2i + 1) / n - 1, so |x_i - c| <= h  <=>  (c - h + 1) n / 2 - 1/2 <= i <= (c + h + 1) n / 2 - 1/2.
+  // x_i = (2i + 1) / n - 1, so |x_i - c| <= h  <=>  (c - h + 1) n / 2 - 1/2 <= i <= (c + h + 1) n /
+  // 2 - 1/2.
   const double scale = 0.5 * static_cast<double>(dims_[0]);
   const double lo = std::ceil((centreX - halfWidth + 1) * scale - 0.5);
   const double hi = std::floor((centreX + halfWidth + 1) * scale - 0.5) + 1;
@@ -464,26 +477,32 @@ void HeadPhantom::applyTextures(const Row& row) const {
   const auto trabecular = trabecular_.row(row.j, row.k);
   const auto spongy = [&](int64_t begin, int64_t end, int32_t mark, float base, float depth) {
     for (int64_t i = begin; i < end; ++i) {
-      const float g = trabecular.a * trabecular.sine[i] + trabecular.b * trabecular.cosine[i] +
-                      trabecular.c;
+      const float g =
+          trabecular.a * trabecular.sine[i] + trabecular.b * trabecular.cosine[i] + trabecular.c;
       const int32_t value = static_cast<int32_t>(base - depth * std::abs(g));
-      hu[i] = hu[i] == mark ? value : hu[i];
+      hu[i] = pick(hu[i] == mark, value, hu[i]);
     }
   };
   const auto [skullBegin, skullEnd] = span(kCranium.cx, kCranium.halfWidth(row.y, row.z));
   spongy(skullBegin, skullEnd, kDiploeMark, 950.0f, 550.0f);
-  const auto [spineBegin, spineEnd] = span(kVertebralBody.cx, kVertebralBody.halfWidth(row.y, row.z));
+  const auto [spineBegin, spineEnd] =
+      span(kVertebralBody.cx, kVertebralBody.halfWidth(row.y, row.z));
   spongy(spineBegin, spineEnd, kSpongyMark, 520.0f, 380.0f);
 
   const auto [brainBegin, brainEnd] =
       span(kCranium.cx, kCranium.halfWidth(row.y, row.z, kCortexInset));
+  // Folds: a gyroid plus a mirrored one at a golden-ratio frequency, so the pattern never
+  // repeats visibly. Grey matter reaches into the white core where the field is high, CSF
+  // fills the deepest sulci.
   const auto folds = folds_.row(row.j, row.k);
+  const auto fine = fineFolds_.mirroredRow(row.j, row.k);
   for (int64_t i = brainBegin; i < brainEnd; ++i) {
-    const float g = folds.a * folds.sine[i] + folds.b * folds.cosine[i] + folds.c;
+    const float g = folds.a * folds.sine[i] + folds.b * folds.cosine[i] + folds.c +
+                    0.7f * (fine.a * fine.sine[i] + fine.b * fine.cosine[i] + fine.c);
     const int32_t v = hu[i];
-    int32_t tissue = (v == kWhiteMark && g < 0.85f) ? kWhiteMatter : kGreyMatter;
-    tissue = g > 1.2f ? kCsf : tissue;
-    hu[i] = (v == kWhiteMark || v == kGreyMark) ? tissue : v;
+    int32_t tissue = pick((v == kWhiteMark) & (g < 0.6f), kWhiteMatter, kGreyMatter);
+    tissue = pick(g > 1.8f, kCsf, tissue);
+    hu[i] = pick((v == kWhiteMark) | (v == kGreyMark), tissue, v);
   }
 }
 
@@ -544,9 +563,10 @@ void HeadPhantom::paintVessels(const Row& row) const {
     const float r2 = tube.radius * tube.radius;
     const float* cy = tube.centreA.data() - begin;
     const float* cz = tube.centreB.data() - begin;
+    int32_t* hu = row.hu;
     for (int64_t i = begin; i < end; ++i) {
       const float dy = y - cy[i], dz = z - cz[i];
-      row.hu[i] = dy * dy + dz * dz <= r2 ? tube.hu : row.hu[i];
+      hu[i] = pick(dy * dy + dz * dz <= r2, tube.hu, hu[i]);
     }
   }
 }
@@ -591,9 +611,9 @@ void checkOptions(const PhantomOptions& options) {
     }
     const double s = options.spacingMm[a];
     if (!std::isfinite(s) || s <= 0) {
-      throw Error("phantom", fmt::format("spacing {},{},{} mm: each must be positive",
-                                         options.spacingMm.x, options.spacingMm.y,
-                                         options.spacingMm.z));
+      throw Error("phantom",
+                  fmt::format("spacing {},{},{} mm: each must be positive", options.spacingMm.x,
+                              options.spacingMm.y, options.spacingMm.z));
     }
   }
   const double samples = static_cast<double>(options.dims[0]) *
@@ -642,159 +662,6 @@ class PhantomSource final : public VolumeSource {
 std::unique_ptr<VolumeSource> makePhantom(const PhantomOptions& options) {
   checkOptions(options);
   return std::make_unique<PhantomSource>(options);
-}
-
-// ---------------------------------------------------------------------------------------------
-// NRRD writer
-
-namespace {
-
-namespace fs = std::filesystem;
-
-// Deletes the temporary files unless the write was committed.
-class TemporaryFiles {
- public:
-  explicit TemporaryFiles(std::vector<fs::path> paths) : paths_(std::move(paths)) {}
-  TemporaryFiles(const TemporaryFiles&) = delete;
-  TemporaryFiles& operator=(const TemporaryFiles&) = delete;
-  ~TemporaryFiles() {
-    std::error_code ignored;
-    for (const fs::path& path : paths_) fs::remove(path, ignored);
-  }
-  void commit() { paths_.clear(); }
-
- private:
-  std::vector<fs::path> paths_;
-};
-
-// A FILE* that reports every failure as an octoray::Error naming the final file.
-class OutputFile {
- public:
-  OutputFile(const fs::path& tempPath, std::string reportedPath)
-      : reportedPath_(std::move(reportedPath)), file_(std::fopen(tempPath.c_str(), "wb")) {
-    if (file_ == nullptr) fail("cannot create");
-  }
-  OutputFile(const OutputFile&) = delete;
-  OutputFile& operator=(const OutputFile&) = delete;
-  ~OutputFile() {
-    if (file_ != nullptr) std::fclose(file_);
-  }
-
-  void write(const void* data, std::size_t bytes) {
-    if (bytes > 0 && std::fwrite(data, 1, bytes, file_) != bytes) fail("cannot write");
-  }
-  void close() {
-    const int flushed = std::fflush(file_);
-    const int flushErrno = errno;
-    const int closed = std::fclose(file_);
-    file_ = nullptr;
-    if (flushed != 0 || closed != 0) {
-      errno = flushed != 0 ? flushErrno : errno;
-      fail("cannot write");
-    }
-  }
-
- private:
-  [[noreturn]] void fail(const char* what) const {
-    throw Error(reportedPath_, fmt::format("{} ({})", what, std::strerror(errno)));
-  }
-
-  std::string reportedPath_;
-  std::FILE* file_;
-};
-
-std::string nrrdHeader(const PhantomOptions& options, const VolumeInfo& info,
-                       const std::string& dataFileName) {
-  const Vec3 s = options.spacingMm;
-  const Vec3 origin = info.patientFromIndex.column(3);
-  return fmt::format(
-      "NRRD0004\n"
-      "# {}\n"
-      "type: int16\n"
-      "dimension: 3\n"
-      "space: left-posterior-superior\n"
-      "sizes: {} {} {}\n"
-      "space directions: ({},0,0) (0,{},0) (0,0,{})\n"
-      "kinds: domain domain domain\n"
-      "endian: little\n"
-      "encoding: raw\n"
-      "space origin: ({},{},{})\n"
-      "data file: {}\n",
-      info.description, options.dims[0], options.dims[1], options.dims[2], s.x, s.y, s.z,
-      origin.x, origin.y, origin.z, dataFileName);
-}
-
-}  // namespace
-
-void writePhantomNrrd(const PhantomOptions& options, const std::string& path,
-                      const std::function<void(int64_t slicesDone, int64_t slicesTotal)>& progress) {
-  checkOptions(options);
-  const fs::path headerPath(path);
-  const std::string extension = headerPath.extension().string();
-  if (extension != ".nhdr" && extension != ".nrrd") {
-    throw Error(path, "the header name must end in .nhdr or .nrrd");
-  }
-  fs::path rawPath = headerPath;
-  rawPath.replace_extension(".raw");
-  const fs::path headerTemp = fs::path(path + ".partial");
-  const fs::path rawTemp = fs::path(rawPath.string() + ".partial");
-  TemporaryFiles temporaries({headerTemp, rawTemp});
-
-  const HeadPhantom phantom(options);
-  const VolumeInfo info = phantomInfo(options);
-  const int64_t sliceSamples = options.dims[0] * options.dims[1];
-  const int64_t slices = options.dims[2];
-  // Slabs of about 8 M samples (16 MB): one being generated while the previous one is written.
-  const int64_t slabSlices = std::clamp<int64_t>((int64_t{1} << 23) / sliceSamples, 1, slices);
-
-  {
-    OutputFile raw(rawTemp, rawPath.string());
-    std::array<std::vector<int16_t>, 2> buffers;
-    for (auto& buffer : buffers) buffer.resize(static_cast<std::size_t>(slabSlices * sliceSamples));
-    std::future<void> pendingWrite;
-    int64_t slicesWritten = 0;
-    const auto waitForWrite = [&] {
-      if (!pendingWrite.valid()) return;
-      pendingWrite.get();
-      if (progress) progress(slicesWritten, slices);
-    };
-    for (int64_t first = 0, slab = 0; first < slices; first += slabSlices, ++slab) {
-      const int64_t count = std::min(slabSlices, slices - first);
-      std::vector<int16_t>& buffer = buffers[slab % 2];
-      phantom.generate(first, count, buffer.data());
-      if constexpr (std::endian::native == std::endian::big) {
-        for (int16_t& v : buffer) {
-          const auto u = static_cast<uint16_t>(v);
-          v = static_cast<int16_t>(static_cast<uint16_t>((u >> 8) | (u << 8)));
-        }
-      }
-      waitForWrite();
-      slicesWritten = first + count;
-      const std::size_t bytes = static_cast<std::size_t>(count * sliceSamples) * sizeof(int16_t);
-      pendingWrite = std::async(std::launch::async,
-                                [&raw, data = buffer.data(), bytes] { raw.write(data, bytes); });
-    }
-    waitForWrite();
-    raw.close();
-  }
-  {
-    OutputFile header(headerTemp, path);
-    const std::string text = nrrdHeader(options, info, rawPath.filename().string());
-    header.write(text.data(), text.size());
-    header.close();
-  }
-
-  // The data first, the header last: a header that exists always describes complete data.
-  std::error_code ec;
-  fs::rename(rawTemp, rawPath, ec);
-  if (ec) throw Error(rawPath.string(), "cannot rename from temporary file: " + ec.message());
-  fs::rename(headerTemp, headerPath, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(rawPath, ignored);
-    throw Error(path, "cannot rename from temporary file: " + ec.message());
-  }
-  temporaries.commit();
 }
 
 }  // namespace octoray::volume
