@@ -2,9 +2,9 @@
 // raw int16), generated slab by slab, so scale tests need neither a download nor the memory to
 // hold the volume.
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 #include <tbb/global_control.h>
+#include <CLI/CLI.hpp>
 
 #include <chrono>
 #include <cstdint>
@@ -53,9 +53,10 @@ double parseNumber(const std::string& text, const char* option) {
 
 int64_t parseCount(const std::string& text, const char* option) {
   const double value = parseNumber(text, option);
-  if (!(value >= 1 && value <= 1048576) || value != static_cast<double>(static_cast<int64_t>(value))) {
-    throw octoray::Error("", fmt::format("{}: \"{}\" is not an integer in [1, 1048576]", option,
-                                         text));
+  if (!(value >= 1 && value <= 1048576) ||
+      value != static_cast<double>(static_cast<int64_t>(value))) {
+    throw octoray::Error("",
+                         fmt::format("{}: \"{}\" is not an integer in [1, 1048576]", option, text));
   }
   return static_cast<int64_t>(value);
 }
@@ -63,8 +64,9 @@ int64_t parseCount(const std::string& text, const char* option) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"Writes the octoray synthetic head CT phantom (HU, int16) at any size as NRRD: a "
-               "detached header and a .raw data file beside it."};
+  CLI::App app{
+      "Writes the octoray synthetic head CT phantom (HU, int16) at any size as NRRD: a "
+      "detached header and a .raw data file beside it."};
   std::string output;
   std::string size = "256x256x256";
   std::string spacing = "0.5,0.5,0.5";
@@ -76,8 +78,16 @@ int main(int argc, char** argv) {
   app.add_option("--spacing", spacing, "column, row and slice spacing in mm")
       ->capture_default_str();
   app.add_option("--seed", seed, "seed of the noise")->capture_default_str();
-  app.add_option("--threads", threads, "worker threads (0: all cores)")->check(CLI::NonNegativeNumber);
-  CLI11_PARSE(app, argc, argv);
+  app.add_option("--threads", threads, "worker threads (0: all cores)")
+      ->check(CLI::NonNegativeNumber);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::Success& e) {
+    return app.exit(e);  // --help
+  } catch (const CLI::ParseError& e) {
+    fmt::print(stderr, "octoray-phantom: {}\nRun with --help for more information.\n", e.what());
+    return 1;
+  }
 
   return octoray::cli::runTool("octoray-phantom", [&] {
     const std::vector<std::string> sizeParts = splitThree(size, 'x', "--size");
