@@ -37,9 +37,10 @@ std::vector<float> readBackwards(VolumeSource& source, int64_t slabSlices) {
   const int64_t slabs = (info.dims[2] + slabSlices - 1) / slabSlices;
   for (int64_t s = slabs - 1; s >= 0; --s) {
     const int64_t first = s * slabSlices, count = std::min(slabSlices, info.dims[2] - first);
-    source.readSlab(first, count,
-                    std::span<float>(values).subspan(static_cast<std::size_t>(first * info.sliceSamples()),
-                                                     static_cast<std::size_t>(count * info.sliceSamples())));
+    source.readSlab(
+        first, count,
+        std::span<float>(values).subspan(static_cast<std::size_t>(first * info.sliceSamples()),
+                                         static_cast<std::size_t>(count * info.sliceSamples())));
   }
   return values;
 }
@@ -95,7 +96,8 @@ TEST(Phantom, SlabsInAnyOrderSizeAndThreadCountAgree) {
 }
 
 TEST(Phantom, ValuesAreIntegerHuInRange) {
-  for (const auto& dims : {std::array<int64_t, 3>{64, 64, 64}, std::array<int64_t, 3>{96, 80, 40}}) {
+  for (const auto& dims :
+       {std::array<int64_t, 3>{64, 64, 64}, std::array<int64_t, 3>{96, 80, 40}}) {
     for (const float v : readAll(*makePhantom(optionsFor(dims, 3)))) {
       ASSERT_EQ(v, std::round(v));
       ASSERT_GE(v, -1024.0f);
