@@ -72,7 +72,8 @@ struct FileHeader {
   std::string sopClass, modality, description, seriesUid, photometric;
   std::vector<std::string> imageType;
   int seriesNumber = 0;
-  int rows = 0, columns = 0, bitsAllocated = 0, samplesPerPixel = 1;
+  int rows = 0, columns = 0, bitsAllocated = 0, bitsStored = 0, samplesPerPixel = 1;
+  bool pixelSigned = false;
   std::optional<std::vector<double>> orientation, pixelSpacing;
   std::vector<FrameRef> frames;
   bool multiFrame = false;
@@ -183,6 +184,8 @@ FileHeader readHeader(const std::string& path) {
   h.rows = *rows;
   h.columns = *columns;
   h.bitsAllocated = detail::unsignedShort(file, ds, kBitsAllocated).value_or(0);
+  h.bitsStored = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0101)).value_or(0);
+  h.pixelSigned = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0103)).value_or(0) == 1;
   // The skipped pixel data value is not in the data set; the stream position tells it was there.
   if (pixelValueOffset == std::size_t(-1)) {
     throw Error(path, "image without pixel data");
@@ -416,6 +419,8 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
       s.rows = h.rows;
       s.columns = h.columns;
       s.bitsAllocated = h.bitsAllocated;
+      s.bitsStored = h.bitsStored;
+      s.pixelSigned = h.pixelSigned;
       s.photometric = h.photometric;
       s.hasGeometry = h.orientation.has_value() && h.pixelSpacing.has_value();
       if (s.hasGeometry) {

@@ -207,6 +207,23 @@ class DicomVolumeSource final : public VolumeSource {
                                        return f.rescaleSlope == std::round(f.rescaleSlope) &&
                                               f.rescaleIntercept == std::round(f.rescaleIntercept);
                                      });
+    // Stored values span BitsStored bits; with the rescale of every frame that bounds HU.
+    if (series.bitsStored > 0 && series.bitsStored <= 32) {
+      const double lo = series.pixelSigned ? -std::ldexp(1.0, series.bitsStored - 1) : 0.0;
+      const double hi = series.pixelSigned ? std::ldexp(1.0, series.bitsStored - 1) - 1
+                                           : std::ldexp(1.0, series.bitsStored) - 1;
+      double lower = std::numeric_limits<double>::infinity(), upper = -lower;
+      for (const FrameRef& f : geometry_.slices) {
+        const double a = f.rescaleSlope * lo + f.rescaleIntercept;
+        const double b = f.rescaleSlope * hi + f.rescaleIntercept;
+        lower = std::min({lower, a, b});
+        upper = std::max({upper, a, b});
+      }
+      // Padded pixels become air for CT.
+      if (info.unit == "HU") lower = std::min(lower, -1024.0);
+      info.valueLowerBound = lower;
+      info.valueUpperBound = upper;
+    }
     if (series.photometric == "MONOCHROME1") {
       info.warnings.push_back("MONOCHROME1: values are the modality LUT output (high = dense); "
                               "the inversion is a display setting, not applied to values");

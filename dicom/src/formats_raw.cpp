@@ -131,6 +131,19 @@ uint64_t volumeBytes(const std::array<int64_t, 3>& dims, SampleType type, const 
   return bytes;
 }
 
+std::pair<double, double> sampleTypeRange(SampleType type) {
+  switch (type) {
+    case SampleType::UInt8: return {0, 255};
+    case SampleType::Int8: return {-128, 127};
+    case SampleType::UInt16: return {0, 65535};
+    case SampleType::Int16: return {-32768, 32767};
+    case SampleType::UInt32: return {0, 4294967295.0};
+    case SampleType::Int32: return {-2147483648.0, 2147483647.0};
+    default: break;
+  }
+  return {-std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+}
+
 bool integerValued(SampleType type, double valueScale, double valueOffset) {
   const bool integerSamples = type != SampleType::Float32 && type != SampleType::Float64;
   return integerSamples && std::isfinite(valueScale) && std::isfinite(valueOffset) &&
@@ -372,6 +385,14 @@ std::unique_ptr<VolumeSource> openRawLayout(VolumeInfo info, RawLayout layout) {
     throw Error(info.sourcePath, "internal: volume and data layout disagree on the dimensions");
   }
   info.integerValues = integerValued(layout.sampleType, layout.valueScale, layout.valueOffset);
+  if (info.integerValues) {
+    // The storage type's range, mapped through the value scale and offset.
+    const auto [lo, hi] = sampleTypeRange(layout.sampleType);
+    const double a = lo * layout.valueScale + layout.valueOffset;
+    const double b = hi * layout.valueScale + layout.valueOffset;
+    info.valueLowerBound = std::min(a, b);
+    info.valueUpperBound = std::max(a, b);
+  }
   return std::make_unique<RawSource>(std::move(info), std::move(layout));
 }
 

@@ -91,6 +91,16 @@ class TiffSource final : public VolumeSource {
     info_.sourcePath = path;
     info_.description = std::filesystem::path(path).filename().string();
     info_.integerValues = first.depth() != CV_32F && first.depth() != CV_64F;
+    if (first.depth() == CV_8U) {
+      info_.valueLowerBound = 0;
+      info_.valueUpperBound = 255;
+    } else if (first.depth() == CV_16U) {
+      info_.valueLowerBound = 0;
+      info_.valueUpperBound = 65535;
+    } else if (first.depth() == CV_16S) {
+      info_.valueLowerBound = -32768;
+      info_.valueUpperBound = 32767;
+    }
   }
 
   const VolumeInfo& info() const override { return info_; }

@@ -261,18 +261,19 @@ TEST_F(DamagedStore, ConstantNodeWithWideRangeFailsConstants) {
   }
   ASSERT_GE(id, 0) << "the test volume has constant bricks of air";
   NodeRecord* table = nodeTable(bytes_);
-  table[id].maxValue = table[id].minValue + 10;
+  // Its range moved above its own value: the value no longer lies in the range.
+  const float width = table[id].maxValue - table[id].minValue;
+  table[id].minValue += width + 10;
+  table[id].maxValue += width + 10;
   resealChecksums(bytes_);
   const ValidationReport report = validateStore(copyWith(path_, "constant.octoray", bytes_));
-  expectOnlyFailing(report, {"constants"});
+  ASSERT_FALSE(report.find("constants")->passed());
   EXPECT_EQ(report.find("constants")->failures.at(0).nodeId, id);
 }
 
-// Known builder bug, found by this validator: a node whose own samples are constant but whose
-// children vary is written with kNodeConstant and min/max widened to the children's range, and
-// the reader expands it from minValue, so the root here reads as 0 HU instead of 1 HU (fails
-// `filter` and `constants`). Enabled once store_builder.cpp stores the constant's own value.
-TEST(StoreBuilderKnownBug, DISABLED_ConstantParentOfVaryingChildrenKeepsItsValue) {
+// Found by this validator: a node whose own samples are constant while its children vary keeps
+// its own value (NodeRecord::constantSample), not the lower end of its subtree range.
+TEST(StoreBuilder, ConstantParentOfVaryingChildrenKeepsItsValue) {
   // A checkerboard of 0 and 2 HU filters to a constant 1 HU parent.
   MemoryVolume volume({32, 32, 32},
                       [](int64_t i, int64_t j, int64_t k) { return ((i + j + k) % 2) * 2.0f; });

@@ -637,6 +637,8 @@ VolumeInfo phantomInfo(const PhantomOptions& options) {
   info.description = fmt::format("octoray phantom seed {}", options.seed);
   info.unit = "HU";
   info.integerValues = true;
+  info.valueLowerBound = -1024;
+  info.valueUpperBound = 3071;
   return info;
 }
 

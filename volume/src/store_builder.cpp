@@ -272,7 +272,13 @@ class Builder {
       r.maxValue = std::max(r.maxValue, c.maxValue);
     }
     if (constant) {
+      // Its own value, apart from the range, which may be wider (varying descendants).
       r.flags = kNodeConstant;
+      if constexpr (std::is_same_v<T, float>) {
+        std::memcpy(&r.constantSample, &lo, sizeof lo);
+      } else {
+        r.constantSample = lo;
+      }
       return encoded;
     }
     const std::span<const uint8_t> bytes(reinterpret_cast<const uint8_t*>(samples.data()), samples.size() * sizeof(T));
@@ -345,10 +351,18 @@ class Builder {
   Mat4 indexFromPatientLinear_;
 };
 
+// UInt16 when every value is an integer and fits 65536 steps: CT in HU as HU + 1024 (the
+// usual convention; values outside [-1024, 64511] are clamped and counted), other integer
+// data from the lower bound of its storage type. Float32 otherwise.
 ValueMapping chooseMapping(const VolumeInfo& info, BuildOptions::Format format) {
   ValueMapping m;
   const bool ct = info.integerValues && info.unit == "HU";
-  if (format == BuildOptions::Format::Float32 || (format == BuildOptions::Format::Auto && !ct)) {
+  const bool boundedIntegers = info.integerValues && std::isfinite(info.valueLowerBound) &&
+                               std::isfinite(info.valueUpperBound) &&
+                               info.valueUpperBound - info.valueLowerBound <= 65535;
+  const bool useUInt16 = format == BuildOptions::Format::UInt16 ||
+                         (format == BuildOptions::Format::Auto && (ct || boundedIntegers));
+  if (!useUInt16) {
     m.format = SampleFormat::Float32;
     m.scale = 1;
     m.offset = 0;
@@ -356,7 +370,11 @@ ValueMapping chooseMapping(const VolumeInfo& info, BuildOptions::Format format) 
   }
   m.format = SampleFormat::UInt16;
   m.scale = 1;
-  m.offset = info.unit == "HU" ? -1024.0 : 0.0;
+  if (info.unit == "HU") {
+    m.offset = -1024.0;
+  } else {
+    m.offset = std::isfinite(info.valueLowerBound) ? info.valueLowerBound : 0.0;
+  }
   return m;
 }
 

@@ -108,7 +108,9 @@ StoreReader::StoreReader(const std::string& path) : path_(path) {
       const NodeRecord& n = nodes_[i];
       const uint64_t bytes = uint64_t{n.payloadBytes} + n.gradientBytes;
       const bool constant = (n.flags & kNodeConstant) != 0;
-      if ((constant && bytes != 0) || (!constant && (n.payloadBytes == 0 ||
+      const bool badConstant = constant && (bytes != 0 || (sampleFormat() == SampleFormat::UInt16 &&
+                                                           n.constantSample > 65535));
+      if (badConstant || (!constant && (n.payloadBytes == 0 ||
            n.payloadOffset < sizeof(StoreHeader) || n.payloadOffset > header_.nodeTableOffset ||
            bytes > header_.nodeTableOffset - n.payloadOffset)) ||
           !(n.minValue <= n.maxValue)) {
@@ -149,10 +151,11 @@ Brick StoreReader::readBrick(int64_t id) const {
   const bool hasGradients = (header_.flags & kStoreHasGradients) != 0;
   if (n.flags & kNodeConstant) {
     if (brick.format == SampleFormat::UInt16) {
-      const double stored = (n.minValue - header_.valueOffset) / header_.valueScale;
-      brick.u16.assign(samples, static_cast<uint16_t>(std::lround(stored)));
+      brick.u16.assign(samples, static_cast<uint16_t>(n.constantSample));
     } else {
-      brick.f32.assign(samples, n.minValue);
+      float value;
+      std::memcpy(&value, &n.constantSample, sizeof value);
+      brick.f32.assign(samples, value);
     }
     // A constant brick has a zero gradient: direction undefined (encoded as 128), norm 0.
     if (hasGradients) {

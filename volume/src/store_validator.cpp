@@ -210,10 +210,20 @@ class NodeChecker {
       checksums_.fail(id, error);
     }
     constants_.count();
-    if ((record.flags & kNodeConstant) && record.minValue != record.maxValue) {
-      constants_.fail(id, fmt::format("constant node has min {} != max {} (children's range "
-                                      "differs from its single stored value)",
-                                      record.minValue, record.maxValue));
+    if (record.flags & kNodeConstant) {
+      // The constant's own value must lie in the node's (subtree) range.
+      double value;
+      if (store_.sampleFormat() == SampleFormat::UInt16) {
+        value = store_.physical(static_cast<double>(record.constantSample));
+      } else {
+        float f;
+        std::memcpy(&f, &record.constantSample, sizeof f);
+        value = f;
+      }
+      if (!(value >= record.minValue && value <= record.maxValue)) {
+        constants_.fail(id, fmt::format("constant node's value {} lies outside its range [{}, {}]",
+                                        value, record.minValue, record.maxValue));
+      }
     }
     if (!brick) return;
     const std::span<const T> samples = samplesOf<T>(*brick);

@@ -51,6 +51,8 @@ struct DicomSeries {
   Vec3 columnDirection{0, 1, 0};  // ImageOrientationPatient[3..5]: direction of increasing row
   bool hasGeometry = false;
   int bitsAllocated = 0;
+  int bitsStored = 0;         // of the first image (0 when absent)
+  bool pixelSigned = false;   // PixelRepresentation == 1
   std::string photometric;
 
   std::vector<FrameRef> frames;  // in discovery order; geometry is resolved by DicomVolume

@@ -5,6 +5,7 @@
 // volume in memory.
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <span>
 #include <string>
@@ -24,6 +25,11 @@ struct VolumeInfo {
   std::string seriesUid;                 // DICOM SeriesInstanceUID or empty
   std::string unit;                      // "HU" for CT after rescale, else "" (raw values)
   bool integerValues = true;             // every sample is an integer (exactly in float)
+  // Every sample lies in [valueLowerBound, valueUpperBound], known from the storage type
+  // (e.g. int16 raw data, or DICOM's BitsStored and rescale); NaN when unknown. Lets the
+  // octree store keep 16-bit samples for integer data.
+  double valueLowerBound = std::numeric_limits<double>::quiet_NaN();
+  double valueUpperBound = std::numeric_limits<double>::quiet_NaN();
   double tiltDegrees = 0;                // angle between slice step and slice normal
   bool resampled = false;                // slices were interpolated to a uniform spacing
   std::vector<std::string> warnings;     // everything the reader had to decide or repair

@@ -32,7 +32,7 @@ enum StoreFlags : uint32_t {
 };
 
 enum NodeFlags : uint32_t {
-  kNodeConstant = 1u << 0,  // every stored sample equals minValue; no payload
+  kNodeConstant = 1u << 0,  // every stored sample equals constantSample; no payload
 };
 
 struct StoreHeader {
@@ -77,7 +77,8 @@ struct NodeRecord {
   float minValue;            //  4: physical minimum over the brick's samples (border included)
   float maxValue;            //  4:   and its descendants' ranges: a sound emptiness bound
   uint32_t flags;            //  4: NodeFlags
-  uint32_t reserved;         //  4: zero
+  uint32_t constantSample;   //  4: a constant brick's stored sample (UInt16 value, or the
+                             //     Float32 bit pattern); zero otherwise
   uint64_t payloadChecksum;  //  8: XXH3-64 of values and gradient payload bytes together
 };
 static_assert(sizeof(NodeRecord) == 40);
