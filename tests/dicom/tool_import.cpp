@@ -1,0 +1,363 @@
+// octoray-import as users and scripts run it: the --json documents of docs/import-json.md on a
+// synthetic series written by octoray-sample-series (known size, spacing and tilt), the NIfTI
+// export read back independently, the store summary, and bad input: one clear line on stderr
+// naming the file, exit 1 (2 for command-line mistakes), no output file. Real Philips data
+// where ../shared is present.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "octoray/dicom/formats.h"
+#include "run_process.h"
+#include "test_paths.h"
+
+namespace octoray {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using test::ProcessResult;
+
+constexpr double kPi = 3.14159265358979323846;
+
+ProcessResult runTool(const std::string& tool, std::vector<std::string> args) {
+  args.insert(args.begin(), test::toolPath(tool).string());
+  return test::runProcess(args);
+}
+
+ProcessResult runImport(std::vector<std::string> args) {
+  return runTool("octoray-import", std::move(args));
+}
+
+// A 32x32x12 synthetic CT series (0.5 x 0.5 x 1.25 mm) in a fresh folder `name`.
+fs::path writeSeries(const std::string& name, std::vector<std::string> extra = {}) {
+  const fs::path dir = test::freshTempDir(name);
+  std::vector<std::string> args = {dir.string(), "--size", "32x32x12"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  const ProcessResult r = runTool("octoray-sample-series", args);
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  return dir;
+}
+
+json parseJson(const ProcessResult& r) {
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  try {
+    return json::parse(r.out);
+  } catch (const json::exception& e) {
+    ADD_FAILURE() << "stdout is not JSON (" << e.what() << "):\n" << r.out;
+    return json::object();
+  }
+}
+
+void expectCommonFields(const json& j, const std::string& path) {
+  EXPECT_EQ(j.value("tool", ""), "octoray-import");
+  EXPECT_EQ(j.value("schemaVersion", 0), 1);
+  EXPECT_EQ(j.value("path", ""), path);
+}
+
+std::vector<std::string> lines(const std::string& text) {
+  std::vector<std::string> result;
+  std::size_t start = 0;
+  while (start < text.size()) {
+    const std::size_t end = text.find('\n', start);
+    const std::string line = text.substr(start, end == std::string::npos ? end : end - start);
+    if (!line.empty()) result.push_back(line);
+    if (end == std::string::npos) break;
+    start = end + 1;
+  }
+  return result;
+}
+
+// A failure on bad input: exit 1, exactly one line "octoray-import: ..." on stderr naming
+// `named`, nothing on stdout, no crash or stack trace.
+void expectInputError(const ProcessResult& r, const std::string& named) {
+  EXPECT_EQ(r.signal, 0) << "killed by signal " << r.signal << "\n" << r.err;
+  EXPECT_EQ(r.exitCode, 1) << r.err;
+  const auto errLines = lines(r.err);
+  ASSERT_EQ(errLines.size(), 1u) << "stderr:\n" << r.err;
+  EXPECT_EQ(errLines[0].rfind("octoray-import: ", 0), 0u) << errLines[0];
+  EXPECT_NE(errLines[0].find(named), std::string::npos) << "does not name " << named << ": "
+                                                        << errLines[0];
+  for (const char* trace : {"terminate called", "Aborted", "Segmentation", "#0 ", "what():"}) {
+    EXPECT_EQ(r.err.find(trace), std::string::npos) << r.err;
+  }
+  EXPECT_TRUE(r.out.empty()) << "stdout:\n" << r.out;
+}
+
+// A command-line mistake: exit 2, a message naming `named`, no crash.
+void expectUsageError(const ProcessResult& r, const std::string& named) {
+  EXPECT_EQ(r.signal, 0);
+  EXPECT_EQ(r.exitCode, 2) << r.err;
+  EXPECT_NE(r.err.find(named), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("terminate called"), std::string::npos) << r.err;
+}
+
+// The folder holds nothing but `expected` (no output file, no temporary left behind).
+void expectOnly(const fs::path& dir, const std::vector<std::string>& expected) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  std::vector<std::string> want = expected;
+  std::sort(want.begin(), want.end());
+  EXPECT_EQ(names, want);
+}
+
+// ---- JSON documents on a synthetic series -------------------------------------------------
+
+TEST(ToolImport, ListJsonReportsVolumeAndLocalizer) {
+  const fs::path dir = writeSeries("series", {"--with-localizer"});
+  const json j = parseJson(runImport({"--list", dir.string(), "--json"}));
+  expectCommonFields(j, dir.string());
+  EXPECT_EQ(j.value("filesExamined", 0), 13);
+  ASSERT_EQ(j["series"].size(), 2u) << j.dump(2);
+  int volumes = 0, localizers = 0, defaults = 0;
+  for (std::size_t n = 0; n < j["series"].size(); ++n) {
+    const json& s = j["series"][n];
+    EXPECT_EQ(s["index"].get<std::size_t>(), n);
+    EXPECT_FALSE(s["seriesUid"].get<std::string>().empty());
+    EXPECT_EQ(s["modality"], "CT");
+    EXPECT_EQ(s["columns"], 32);
+    EXPECT_EQ(s["rows"], 32);
+    if (s["default"].get<bool>()) ++defaults;
+    if (s["kind"] == "localizer") {
+      ++localizers;
+      EXPECT_FALSE(s["default"].get<bool>());
+      EXPECT_EQ(s["images"], 1);
+    } else if (s["kind"] == "volume") {
+      ++volumes;
+      EXPECT_TRUE(s["default"].get<bool>());
+      EXPECT_EQ(s["images"], 12);
+      EXPECT_EQ(s["slices"], 12);
+      EXPECT_FALSE(s["multiFrame"].get<bool>());
+      EXPECT_TRUE(s["uniformSpacing"].get<bool>());
+      ASSERT_EQ(s["pixelSpacingMm"].size(), 2u);
+      EXPECT_NEAR(s["pixelSpacingMm"][0].get<double>(), 0.5, 1e-6);
+      EXPECT_NEAR(s["pixelSpacingMm"][1].get<double>(), 0.5, 1e-6);
+      EXPECT_NEAR(s["sliceSpacingMm"].get<double>(), 1.25, 1e-6);
+      EXPECT_NEAR(s["tiltDegrees"].get<double>(), 0.0, 1e-6);
+    }
+    EXPECT_FALSE(s["kindReason"].get<std::string>().empty());
+  }
+  EXPECT_EQ(volumes, 1);
+  EXPECT_EQ(localizers, 1);
+  EXPECT_EQ(defaults, 1);
+  EXPECT_TRUE(j["skipped"].empty());
+}
+
+TEST(ToolImport, InspectJsonKeepsTiltAsShear) {
+  const fs::path dir = writeSeries("series", {"--tilt", "12"});
+  const json j = parseJson(runImport({"--inspect", dir.string(), "--json"}));
+  expectCommonFields(j, dir.string());
+  EXPECT_EQ(j["format"], "dicom");
+  EXPECT_EQ(j["modality"], "CT");
+  EXPECT_EQ(j["dimensions"], json({32, 32, 12}));
+  EXPECT_NEAR(j["tiltDegrees"].get<double>(), 12.0, 1e-3);
+  EXPECT_FALSE(j["resampled"].get<bool>());
+  EXPECT_EQ(j["unit"], "HU");
+  EXPECT_TRUE(j["integerValues"].get<bool>());
+  EXPECT_EQ(j["nonFiniteSamples"], 0);
+
+  // Column 2 (the slice step) is sheared along the column direction by tan(tilt).
+  const json& m = j["patientFromIndex"];
+  ASSERT_EQ(m.size(), 4u);
+  EXPECT_EQ(m[3], json({0.0, 0.0, 0.0, 1.0}));
+  EXPECT_NEAR(m[0][0].get<double>(), 0.5, 1e-9);
+  EXPECT_NEAR(m[1][1].get<double>(), 0.5, 1e-9);
+  const double shear = m[1][2].get<double>();
+  const double normalStep = m[2][2].get<double>();
+  EXPECT_NEAR(std::abs(shear), 1.25 * std::tan(12.0 * kPi / 180.0), 1e-4);
+  EXPECT_NEAR(normalStep, 1.25, 1e-6);
+  EXPECT_NEAR(j["spacingMm"][2].get<double>(), std::hypot(shear, normalStep), 1e-6);
+  EXPECT_NEAR(j["spacingMm"][0].get<double>(), 0.5, 1e-9);
+
+  ASSERT_TRUE(j["valueRange"].is_object());
+  EXPECT_LT(j["valueRange"]["min"].get<double>(), j["valueRange"]["max"].get<double>());
+  bool mentionsTilt = false;
+  for (const auto& w : j["warnings"]) mentionsTilt |= w.get<std::string>().find("tilt") != std::string::npos;
+  EXPECT_TRUE(mentionsTilt) << j["warnings"].dump();
+  EXPECT_EQ(j["series"]["kind"], "volume");
+  EXPECT_EQ(j["seriesUid"], j["series"]["seriesUid"]);
+}
+
+TEST(ToolImport, ExportNiftiMatchesTheSeries) {
+  const fs::path dir = writeSeries("series", {"--tilt", "12"});
+  const fs::path outDir = test::freshTempDir("out");
+  const fs::path out = outDir / "out.nii.gz";
+  const json inspect = parseJson(runImport({"--inspect", dir.string(), "--json"}));
+  const json j = parseJson(runImport({"--export", out.string(), dir.string(), "--json"}));
+  expectCommonFields(j, dir.string());
+  EXPECT_EQ(j["output"], out.string());
+  EXPECT_EQ(j["dimensions"], json({32, 32, 12}));
+  ASSERT_TRUE(fs::exists(out));
+  expectOnly(outDir, {"out.nii.gz"});
+
+  const auto nifti = openNifti(out.string());
+  const auto dicom = openVolume(dir.string());
+  const VolumeInfo& info = nifti->info();
+  ASSERT_EQ(info.dims, (std::array<int64_t, 3>{32, 32, 12}));
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) {
+      EXPECT_NEAR(info.patientFromIndex.m[r][c], inspect["patientFromIndex"][r][c].get<double>(), 1e-4)
+          << "patientFromIndex[" << r << "][" << c << "]";
+    }
+  std::vector<float> fromNifti(static_cast<std::size_t>(info.sampleCount()));
+  std::vector<float> fromDicom(fromNifti.size());
+  nifti->readSlab(0, info.dims[2], fromNifti);
+  dicom->readSlab(0, info.dims[2], fromDicom);
+  std::size_t differing = 0;
+  for (std::size_t n = 0; n < fromNifti.size(); ++n) differing += fromNifti[n] != fromDicom[n];
+  EXPECT_EQ(differing, 0u);
+}
+
+TEST(ToolImport, StoreJsonSummary) {
+  const fs::path dir = writeSeries("series");
+  const fs::path outDir = test::freshTempDir("out");
+  const fs::path out = outDir / "out.octoray";
+  const json j = parseJson(runImport({dir.string(), "-o", out.string(), "--json"}));
+  expectCommonFields(j, dir.string());
+  ASSERT_TRUE(fs::exists(out));
+  expectOnly(outDir, {"out.octoray"});
+  EXPECT_EQ(j["output"], out.string());
+  EXPECT_EQ(j["voxels"].get<int64_t>(), 32 * 32 * 12);
+  EXPECT_EQ(j["bricks"].get<int64_t>(), 1);  // 32^3 samples fit one brick of the default B = 32
+  EXPECT_EQ(j["bytesOnDisk"].get<uint64_t>(), fs::file_size(out));
+  const double rss = j["peakRssMiB"].get<double>();
+  EXPECT_GT(rss, 1.0);
+  EXPECT_LT(rss, 2048.0);
+  EXPECT_EQ(j["sampleFormat"], "uint16");
+}
+
+// ---- bad input ------------------------------------------------------------------------------
+
+TEST(ToolImportBadInput, NonexistentPath) {
+  const fs::path outDir = test::freshTempDir("out");
+  const std::string missing = (outDir / "no-such-folder").string();
+  expectInputError(runImport({"--inspect", missing}), missing);
+  expectInputError(runImport({"--export", (outDir / "x.nii.gz").string(), missing}), missing);
+  expectInputError(runImport({missing, "-o", (outDir / "x.octoray").string()}), missing);
+  expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, EmptyFolder) {
+  const fs::path empty = test::freshTempDir("empty");
+  const fs::path outDir = test::freshTempDir("out");
+  expectInputError(runImport({"--inspect", empty.string()}), empty.string());
+  expectInputError(runImport({empty.string(), "-o", (outDir / "x.octoray").string()}),
+                   empty.string());
+  const ProcessResult list = runImport({"--list", empty.string(), "--json"});
+  EXPECT_EQ(list.exitCode, 1) << "no image series found must exit 1";
+  expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, FolderOfTextFiles) {
+  const fs::path dir = test::freshTempDir("text");
+  for (const char* name : {"notes.txt", "README", "scan.dcm"}) {
+    std::ofstream(dir / name) << "not a DICOM file, just text\n";
+  }
+  const fs::path outDir = test::freshTempDir("out");
+  expectInputError(runImport({"--inspect", dir.string()}), dir.string());
+  expectInputError(runImport({"--export", (outDir / "x.nii.gz").string(), dir.string()}),
+                   dir.string());
+  expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, TruncatedDicomFileAlone) {
+  const fs::path series = writeSeries("series");
+  const fs::path dir = test::freshTempDir("truncated");
+  const fs::path file = dir / "CT0001.dcm";
+  fs::copy_file(series / "CT0001.dcm", file);
+  fs::resize_file(file, fs::file_size(file) / 2);  // cut inside the pixel data
+  const fs::path outDir = test::freshTempDir("out");
+  expectInputError(runImport({"--inspect", file.string()}), file.string());
+  expectInputError(runImport({"--export", (outDir / "x.nii.gz").string(), file.string()}),
+                   file.string());
+  expectInputError(runImport({file.string(), "-o", (outDir / "x.octoray").string()}),
+                   file.string());
+  expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, SeriesOutOfRange) {
+  const fs::path dir = writeSeries("series");
+  const fs::path outDir = test::freshTempDir("out");
+  const ProcessResult r = runImport({"--inspect", dir.string(), "--series", "99"});
+  expectInputError(r, dir.string());
+  EXPECT_NE(r.err.find("99"), std::string::npos) << r.err;
+  expectInputError(
+      runImport({"--export", (outDir / "x.nii.gz").string(), dir.string(), "--series", "99"}),
+      dir.string());
+  expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, ConflictingFlagsAreUsageErrors) {
+  const fs::path dir = writeSeries("series");
+  const fs::path outDir = test::freshTempDir("out");
+  const std::string nii = (outDir / "x.nii.gz").string();
+  const std::string store = (outDir / "x.octoray").string();
+  expectUsageError(runImport({"--list", "--inspect", dir.string()}), "--inspect");
+  expectUsageError(runImport({"--export", nii, "-o", store, dir.string()}), "--export");
+  expectUsageError(runImport({"--inspect", "--export", nii, dir.string()}), "--export");
+  expectUsageError(runImport({dir.string()}), "choose one of");
+  expectUsageError(runImport({"--list"}), "path");
+  expectUsageError(runImport({dir.string(), "-o", store, "--brick-size", "17"}), "17");
+  expectOnly(outDir, {});
+}
+
+// ---- real Philips data ---------------------------------------------------------------------
+
+// SeriesInstanceUID of S21610/S2010 ("STEREOTAXIS", gantry tilt -18.5 in its headers).
+constexpr const char* kTiltedPhilipsUid = "1.3.46.670589.33.1.7303547162003802183.31761132431540865648";
+
+TEST(ToolImportPhilips, ListShowsVolumesAndLocalizers) {
+  OCTORAY_REQUIRE_PATH(test::philipsDir());
+  const json j = parseJson(runImport({"--list", test::philipsDir().string(), "--json"}));
+  int volumes = 0, localizers = 0;
+  for (const auto& s : j["series"]) {
+    volumes += s["kind"] == "volume";
+    localizers += s["kind"] == "localizer";
+  }
+  EXPECT_EQ(volumes, 4) << j["series"].dump(1);
+  EXPECT_GE(localizers, 1);
+  // The plain table shows the same kinds.
+  const ProcessResult text = runImport({"--list", test::philipsDir().string()});
+  EXPECT_EQ(text.exitCode, 0);
+  EXPECT_NE(text.out.find("localizer"), std::string::npos) << text.out;
+  EXPECT_NE(text.out.find("STEREOTAXIS"), std::string::npos) << text.out;
+}
+
+TEST(ToolImportPhilips, InspectTiltedSeriesReportsShear) {
+  OCTORAY_REQUIRE_PATH(test::philipsDir() / "S21610/S2010");
+  const json j = parseJson(runImport(
+      {"--inspect", test::philipsDir().string(), "--series", kTiltedPhilipsUid, "--json"}));
+  EXPECT_EQ(j["seriesUid"], kTiltedPhilipsUid);
+  EXPECT_NEAR(std::abs(j["tiltDegrees"].get<double>()), 18.5, 0.05);
+  const json& m = j["patientFromIndex"];
+  // The slice step leaves the slice normal by the tilt: the ratio of its component in the
+  // image plane to its component along the normal is tan(18.5 degrees).
+  const double c0[3] = {m[0][0], m[1][0], m[2][0]};
+  const double c1[3] = {m[0][1], m[1][1], m[2][1]};
+  const double c2[3] = {m[0][2], m[1][2], m[2][2]};
+  double normal[3] = {c0[1] * c1[2] - c0[2] * c1[1], c0[2] * c1[0] - c0[0] * c1[2],
+                      c0[0] * c1[1] - c0[1] * c1[0]};
+  const double nl = std::hypot(normal[0], normal[1], normal[2]);
+  double along = 0, total = 0;
+  for (int a = 0; a < 3; ++a) {
+    along += c2[a] * normal[a] / nl;
+    total += c2[a] * c2[a];
+  }
+  const double inPlane = std::sqrt(std::max(0.0, total - along * along));
+  EXPECT_NEAR(std::atan2(inPlane, std::abs(along)) * 180.0 / kPi, 18.5, 0.05);
+  bool mentionsTilt = false;
+  for (const auto& w : j["warnings"]) mentionsTilt |= w.get<std::string>().find("tilt") != std::string::npos;
+  EXPECT_TRUE(mentionsTilt) << j["warnings"].dump();
+}
+
+}  // namespace
+}  // namespace octoray
