@@ -61,6 +61,31 @@ bool decompress(Codec codec, std::span<const uint8_t> input, std::span<uint8_t> 
   return false;
 }
 
+std::size_t compressSamples(Codec codec, int zstdLevel, std::span<const uint8_t> samples,
+                            std::size_t sampleBytes, std::vector<uint8_t>& out) {
+  if (sampleBytes <= 1) return compress(codec, zstdLevel, samples, out);
+  const std::size_t count = samples.size() / sampleBytes;
+  std::vector<uint8_t> planes(samples.size());
+  for (std::size_t b = 0; b < sampleBytes; ++b) {
+    uint8_t* plane = planes.data() + b * count;
+    for (std::size_t i = 0; i < count; ++i) plane[i] = samples[i * sampleBytes + b];
+  }
+  return compress(codec, zstdLevel, planes, out);
+}
+
+bool decompressSamples(Codec codec, std::span<const uint8_t> input, std::span<uint8_t> samples,
+                       std::size_t sampleBytes) {
+  if (sampleBytes <= 1) return decompress(codec, input, samples);
+  std::vector<uint8_t> planes(samples.size());
+  if (!decompress(codec, input, planes)) return false;
+  const std::size_t count = samples.size() / sampleBytes;
+  for (std::size_t b = 0; b < sampleBytes; ++b) {
+    const uint8_t* plane = planes.data() + b * count;
+    for (std::size_t i = 0; i < count; ++i) samples[i * sampleBytes + b] = plane[i];
+  }
+  return true;
+}
+
 uint64_t checksum(const void* data, std::size_t bytes) { return XXH3_64bits(data, bytes); }
 
 const char* codecName(Codec codec) {

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <deque>
+#include <future>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -77,16 +78,32 @@ class Builder {
   void run() {
     const VolumeInfo& info = source_.info();
     const int64_t sliceSamples = info.sliceSamples();
-    std::vector<float> slab;
-    for (int64_t z = 0; z < info.dims[2]; z += slabSlices_) {
-      if (options_.cancel && options_.cancel->load()) throw BuildCancelled();
+    // The next slab is read on another thread while this one is cut into bricks.
+    const auto readSlab = [this, &info, sliceSamples](int64_t z, std::vector<float>& slab) {
       const int64_t count = std::min(slabSlices_, info.dims[2] - z);
       slab.resize(static_cast<std::size_t>(sliceSamples * count));
       source_.readSlab(z, count, slab);
-      for (int64_t s = 0; s < count; ++s) {
-        std::vector<T> slice(static_cast<std::size_t>(sliceSamples));
-        convert(std::span<const float>(slab.data() + s * sliceSamples, static_cast<std::size_t>(sliceSamples)), slice);
-        pushSlice(layout_.leafLevel(), std::move(slice));
+    };
+    std::vector<float> current, next;
+    std::future<void> pending = std::async(std::launch::async, readSlab, int64_t{0}, std::ref(next));
+    for (int64_t z = 0; z < info.dims[2]; z += slabSlices_) {
+      pending.get();
+      std::swap(current, next);
+      if (options_.cancel && options_.cancel->load()) throw BuildCancelled();
+      if (z + slabSlices_ < info.dims[2]) {
+        pending = std::async(std::launch::async, readSlab, z + slabSlices_, std::ref(next));
+      }
+      const int64_t count = std::min(slabSlices_, info.dims[2] - z);
+      try {
+        for (int64_t s = 0; s < count; ++s) {
+          std::vector<T> slice(static_cast<std::size_t>(sliceSamples));
+          convert(std::span<const float>(current.data() + s * sliceSamples,
+                                         static_cast<std::size_t>(sliceSamples)), slice);
+          pushSlice(layout_.leafLevel(), std::move(slice));
+        }
+      } catch (...) {
+        if (pending.valid()) pending.wait();  // never leave the reader running on our buffers
+        throw;
       }
       if (options_.progress) options_.progress(z + count, info.dims[2]);
     }
@@ -106,7 +123,7 @@ class Builder {
     slabSlices_ = std::clamp<int64_t>(static_cast<int64_t>(budget / 16 / std::max<uint64_t>(sliceFloatBytes, 1)), 1, 16);
     const uint64_t perBrick = static_cast<uint64_t>(layout_.storedSamples()) *
                               (sizeof(T) * 2 + (options_.gradients ? 8 : 0)) + 4096;
-    const uint64_t fixed = windowBytes + static_cast<uint64_t>(slabSlices_) * sliceFloatBytes;
+    const uint64_t fixed = windowBytes + 2 * static_cast<uint64_t>(slabSlices_) * sliceFloatBytes;
     if (fixed + 16 * perBrick > budget) {
       throw Error(info.sourcePath, fmt::format("memory budget of {} MiB is too small for slices of "
                                                "{}x{}: the build needs at least {} MiB",
@@ -130,14 +147,29 @@ class Builder {
       std::copy(in.begin(), in.end(), out.begin());
     } else {
       const double scale = mapping_.scale, offset = mapping_.offset;
+      // Integer sources with a unit scale (all CT): an exact integer subtraction that the
+      // compiler vectorises; values of float magnitude below 2^24 convert exactly.
+      const bool integerPath = source_.info().integerValues && scale == 1 &&
+                               offset == std::round(offset) && std::abs(offset) < (1 << 24);
+      const auto offsetInt = static_cast<int32_t>(offset);
       std::atomic<int64_t> clamped{0};
       tbb::parallel_for(tbb::blocked_range<std::size_t>(0, in.size(), 1 << 16), [&](const auto& r) {
         int64_t localClamped = 0;
-        for (std::size_t i = r.begin(); i != r.end(); ++i) {
-          const double stored = std::round((in[i] - offset) / scale);
-          const double c = std::clamp(stored, 0.0, 65535.0);
-          localClamped += (c != stored) || !std::isfinite(in[i]);
-          out[i] = static_cast<uint16_t>(std::isfinite(c) ? c : 0.0);
+        if (integerPath) {
+          for (std::size_t i = r.begin(); i != r.end(); ++i) {
+            const float v = std::clamp(in[i], -16777216.0f, 16777216.0f);  // NaN stays NaN
+            const int32_t stored = (v == v ? static_cast<int32_t>(v) : 0) - offsetInt;
+            const int32_t c = std::clamp(stored, 0, 65535);
+            localClamped += (c != stored) | (v != in[i]);
+            out[i] = static_cast<uint16_t>(c);
+          }
+        } else {
+          for (std::size_t i = r.begin(); i != r.end(); ++i) {
+            const double stored = std::round((in[i] - offset) / scale);
+            const double c = std::clamp(stored, 0.0, 65535.0);
+            localClamped += (c != stored) || !std::isfinite(in[i]);
+            out[i] = static_cast<uint16_t>(std::isfinite(c) ? c : 0.0);
+          }
         }
         clamped += localClamped;
       });
@@ -282,10 +314,10 @@ class Builder {
       return encoded;
     }
     const std::span<const uint8_t> bytes(reinterpret_cast<const uint8_t*>(samples.data()), samples.size() * sizeof(T));
-    r.payloadBytes = static_cast<uint32_t>(detail::compress(options_.codec, options_.zstdLevel, bytes, encoded.payload));
+    r.payloadBytes = static_cast<uint32_t>(detail::compressSamples(options_.codec, options_.zstdLevel, bytes, sizeof(T), encoded.payload));
     if (options_.gradients) {
       const std::vector<uint8_t> gradients = computeGradients(key);
-      r.gradientBytes = static_cast<uint32_t>(detail::compress(options_.codec, options_.zstdLevel, gradients, encoded.payload));
+      r.gradientBytes = static_cast<uint32_t>(detail::compressSamples(options_.codec, options_.zstdLevel, gradients, 4, encoded.payload));
     }
     r.payloadChecksum = detail::checksum(encoded.payload.data(), encoded.payload.size());
     return encoded;

@@ -176,17 +176,17 @@ Brick StoreReader::readBrick(int64_t id) const {
   const auto codec = static_cast<Codec>(header_.codec);
   if (brick.format == SampleFormat::UInt16) {
     brick.u16.resize(samples);
-    ok = detail::decompress(codec, values,
-                            {reinterpret_cast<uint8_t*>(brick.u16.data()), samples * 2});
+    ok = detail::decompressSamples(codec, values,
+                                   {reinterpret_cast<uint8_t*>(brick.u16.data()), samples * 2}, 2);
   } else {
     brick.f32.resize(samples);
-    ok = detail::decompress(codec, values,
-                            {reinterpret_cast<uint8_t*>(brick.f32.data()), samples * 4});
+    ok = detail::decompressSamples(codec, values,
+                                   {reinterpret_cast<uint8_t*>(brick.f32.data()), samples * 4}, 4);
   }
   if (ok && hasGradients) {
     brick.gradients.resize(samples * 4);
-    ok = detail::decompress(codec, {payload.data() + n.payloadBytes, n.gradientBytes},
-                            brick.gradients);
+    ok = detail::decompressSamples(codec, {payload.data() + n.payloadBytes, n.gradientBytes},
+                                   brick.gradients, 4);
   }
   if (!ok) throw Error(path_, fmt::format("node {}: payload does not decompress", id));
   return brick;

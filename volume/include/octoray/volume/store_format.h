@@ -3,7 +3,8 @@
 //
 //   [StoreHeader, 256 bytes] [payloads ...] [NodeRecord × nodeCount] [provenance JSON]
 //
-// Payloads are compressed bricks (values, then optional gradients), each with an XXH3-64
+// Payloads are compressed bricks (values, then optional gradients; each byte-shuffled before
+// compression: byte 0 of every sample, then byte 1, ...), each with an XXH3-64
 // checksum in its NodeRecord; the node table and the provenance have checksums in the header,
 // and the header has its own. The file is written under a temporary name and renamed when
 // complete, so a file at the final name is always whole.
