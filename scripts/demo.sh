@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main job on a built-in default: write a small synthetic CT exam (a tilted axial series
-# with a localiser beside it), then list and inspect it with octoray-import and export it to
-# NIfTI. Usage: scripts/demo.sh [BUILD_DIR]
+# with a localiser beside it), list and inspect it with octoray-import, export it to NIfTI,
+# build its octree store and validate the store. Usage: scripts/demo.sh [BUILD_DIR]
 set -euo pipefail
 build=${1:-build}
 out=$(mktemp -d "${TMPDIR:-/tmp}/octoray-demo.XXXXXX")
@@ -14,3 +14,7 @@ echo
 "$build/bin/octoray-import" --inspect "$out/exam"
 echo
 "$build/bin/octoray-import" --export "$out/exam.nii.gz" "$out/exam"
+echo
+"$build/bin/octoray-import" "$out/exam" -o "$out/exam.octoray"
+echo
+"$build/bin/octoray-validate" "$out/exam.octoray"

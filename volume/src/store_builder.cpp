@@ -116,7 +116,7 @@ class Builder {
     uint64_t windowBytes = 0;
     for (int l = 0; l < layout_.levels(); ++l) {
       const Index3& d = layout_.levelDims(l);
-      windowBytes += static_cast<uint64_t>(layout_.storedEdge() + 2) * static_cast<uint64_t>(d[0] * d[1]) * sizeof(T);
+      windowBytes += static_cast<uint64_t>(layout_.storedEdge() + 4) * static_cast<uint64_t>(d[0] * d[1]) * sizeof(T);
     }
     const uint64_t sliceFloatBytes = static_cast<uint64_t>(info.sliceSamples()) * sizeof(float);
     const uint64_t budget = options_.memoryBudgetBytes;
@@ -230,7 +230,8 @@ class Builder {
 
   void emitReadyRows(int level, bool final) {
     LevelWindow<T>& w = windows_[static_cast<std::size_t>(level)];
-    const int64_t B = layout_.brickSize(), A = layout_.border();
+    // A row reads A slices beyond its bricks, one more for central-difference gradients.
+    const int64_t B = layout_.brickSize(), A = layout_.border() + (options_.gradients ? 1 : 0);
     const int64_t rows = layout_.levelBricks(level)[2];
     while (w.nextRow < rows) {
       const int64_t needEnd = std::min((w.nextRow + 1) * B + A, w.dims[2]);

@@ -2,11 +2,16 @@
 //   --list PATH               the series table
 //   --inspect PATH            resolved geometry, value range and every warning of one volume
 //   --export OUT.nii[.gz] PATH  the resolved volume as NIfTI (shear kept in the sform)
+//   PATH -o OUT.octoray       the brick octree store (volume/)
 // --json output follows docs/import-json.md (schema version 1).
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <sys/resource.h>
+
+#include <atomic>
+#include <csignal>
 #include <cmath>
 #include <iostream>
 #include <limits>
@@ -20,6 +25,7 @@
 #include "octoray/dicom/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/nifti_export.h"
+#include "octoray/volume/store_builder.h"
 
 namespace {
 
@@ -39,7 +45,25 @@ struct Arguments {
   std::string rawDims, rawType = "int16", rawSpacing, tiffSpacing;
   bool rawBigEndian = false;
   uint64_t rawHeaderBytes = 0;
+  // Store build (-o)
+  std::string storePath;
+  int brickSize = 32;
+  int border = 1;
+  bool gradients = false;
+  std::string codec = "lz4";
+  std::string storeFormat = "auto";
+  uint64_t memoryBudgetMiB = 1024;
 };
+
+// SIGINT/SIGTERM stop a build between slabs; the temporary file is removed, OUT untouched.
+std::atomic<bool> gStop{false};
+extern "C" void onStopSignal(int) { gStop.store(true); }
+
+double peakRssMiB() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
 
 std::vector<double> parseList(const std::string& text, char separator, std::size_t count,
                               const char* what) {
@@ -103,8 +127,9 @@ json seriesJson(const dicom::DicomSeries& s, std::size_t index, bool isDefault) 
             {"images", s.frames.size()},
             {"multiFrame", s.multiFrame},
             {"default", isDefault}};
-  if (s.hasGeometry) {
-    j["pixelSpacingMm"] = {s.columnSpacingMm, s.rowSpacingMm};
+  if (s.hasGeometry) j["pixelSpacingMm"] = {s.columnSpacingMm, s.rowSpacingMm};
+  // A stack geometry means something only for series that form volumes.
+  if (s.hasGeometry && (s.kind == dicom::SeriesKind::Volume || s.kind == dicom::SeriesKind::Derived)) {
     try {
       const dicom::StackGeometry g = dicom::resolveStack(s);
       j["slices"] = g.outputSlices;
@@ -289,6 +314,65 @@ void printInspect(const json& j) {
   }
 }
 
+int buildStoreFile(const Arguments& a) {
+  std::optional<dicom::DicomScan> scan;
+  std::optional<std::size_t> index;
+  auto source = openInput(a, scan, index);
+  const VolumeInfo& info = source->info();
+
+  volume::BuildOptions options;
+  options.brickSize = a.brickSize;
+  options.border = a.border;
+  options.gradients = a.gradients;
+  options.codec = a.codec == "zstd" ? volume::Codec::Zstd
+                  : a.codec == "none" ? volume::Codec::None : volume::Codec::Lz4;
+  options.format = a.storeFormat == "uint16"    ? volume::BuildOptions::Format::UInt16
+                   : a.storeFormat == "float32" ? volume::BuildOptions::Format::Float32
+                                                : volume::BuildOptions::Format::Auto;
+  options.memoryBudgetBytes = a.memoryBudgetMiB << 20;
+  options.cancel = &gStop;
+  cli::ProgressBar bar("building");
+  options.progress = [&](int64_t done, int64_t total) {
+    bar.update(static_cast<std::size_t>(done), static_cast<std::size_t>(total));
+  };
+  std::signal(SIGINT, onStopSignal);
+  std::signal(SIGTERM, onStopSignal);
+  volume::BuildReport report;
+  try {
+    report = volume::buildStore(*source, a.storePath, options);
+  } catch (const volume::BuildCancelled&) {
+    bar.finish();
+    fmt::print(stderr, "octoray-import: interrupted; {} was not written\n", a.storePath);
+    return 130;
+  }
+  bar.finish();
+  const double mvoxPerS = report.seconds > 0 ? report.voxels / report.seconds / 1e6 : 0;
+  const double emptyFraction = report.nodes ? double(report.constantNodes) / double(report.nodes) : 0;
+  if (a.json) {
+    json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion}, {"path", a.path},
+              {"output", a.storePath}, {"dimensions", info.dims}, {"voxels", report.voxels},
+              {"bricks", report.nodes}, {"levels", report.levels},
+              {"constantBricks", report.constantNodes}, {"emptyFraction", emptyFraction},
+              {"bytesOnDisk", report.bytesOnDisk}, {"uncompressedBytes", report.uncompressedBytes},
+              {"seconds", report.seconds}, {"mvoxelsPerSecond", mvoxPerS},
+              {"peakRssMiB", peakRssMiB()}, {"clampedSamples", report.clampedSamples},
+              {"sampleFormat", report.sampleFormat == volume::SampleFormat::UInt16 ? "uint16" : "float32"},
+              {"warnings", info.warnings}};
+    std::cout << j.dump(2) << "\n";
+  } else {
+    fmt::print("wrote {}: {} x {} x {} voxels, {} bricks in {} levels ({:.1f}% constant), "
+               "{:.1f} MiB on disk\n", a.storePath, info.dims[0], info.dims[1], info.dims[2],
+               report.nodes, report.levels, 100 * emptyFraction, report.bytesOnDisk / 1048576.0);
+    fmt::print("{:.2f} s, {:.1f} Mvoxels/s, peak RSS {:.0f} MiB\n", report.seconds, mvoxPerS,
+               peakRssMiB());
+    if (report.clampedSamples > 0) {
+      fmt::print("warning: {} samples outside the 16-bit range were clamped\n", report.clampedSamples);
+    }
+    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
+  }
+  return 0;
+}
+
 int run(const Arguments& a) {
   if (a.list) {
     cli::ProgressBar bar("scanning");
@@ -313,6 +397,7 @@ int run(const Arguments& a) {
     }
     return 0;
   }
+  if (!a.storePath.empty()) return buildStoreFile(a);
   std::optional<dicom::DicomScan> scan;
   std::optional<std::size_t> index;
   auto source = openInput(a, scan, index);
@@ -346,8 +431,22 @@ int main(int argc, char** argv) {
                                "Print the resolved geometry, value range and warnings");
   auto* exportOpt = app.add_option("--export", a.exportPath,
                                    "Write the resolved volume as NIfTI (.nii or .nii.gz)");
-  list->excludes(inspect)->excludes(exportOpt);
-  inspect->excludes(exportOpt);
+  auto* storeOpt = app.add_option("-o,--output", a.storePath,
+                                  "Build the brick octree store OUT from PATH");
+  list->excludes(inspect)->excludes(exportOpt)->excludes(storeOpt);
+  inspect->excludes(exportOpt)->excludes(storeOpt);
+  exportOpt->excludes(storeOpt);
+  app.add_option("--brick-size", a.brickSize, "Store: samples per brick edge")
+      ->check(CLI::IsMember({16, 32, 64}));
+  app.add_option("--border", a.border, "Store: replicated border samples (2 for gradients)")
+      ->check(CLI::IsMember({1, 2}));
+  app.add_flag("--gradients", a.gradients, "Store: precompute 8-bit gradients");
+  app.add_option("--codec", a.codec, "Store: payload compression")
+      ->check(CLI::IsMember({"lz4", "zstd", "none"}));
+  app.add_option("--store-format", a.storeFormat, "Store: sample format")
+      ->check(CLI::IsMember({"auto", "uint16", "float32"}));
+  app.add_option("--memory-budget", a.memoryBudgetMiB, "Store: build memory budget in MiB")
+      ->check(CLI::Range(64, 1 << 20));
   app.add_option("path", a.path, "DICOM folder, DICOMDIR, DICOM file, or a .nrrd/.nhdr/.mhd/"
                                  ".mha/.nii/.nii.gz/.tif file or TIFF folder")
       ->required();
@@ -367,8 +466,8 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  if (!a.list && !a.inspect && a.exportPath.empty()) {
-    std::cerr << "octoray-import: choose one of --list, --inspect or --export OUT\n"
+  if (!a.list && !a.inspect && a.exportPath.empty() && a.storePath.empty()) {
+    std::cerr << "octoray-import: choose one of --list, --inspect, --export OUT or -o OUT\n"
               << app.help();
     return 2;
   }
