@@ -6,6 +6,8 @@ set -euo pipefail
 packages=(
   # toolchain
   build-essential cmake ninja-build pkg-config
+  # fuzzing (scripts/test.sh): clang with libFuzzer and its sanitizer runtimes
+  clang libclang-rt-14-dev
   # libraries
   libgdcm-dev libvtk9-dev libopencv-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
   nlohmann-json3-dev libcli11-dev libfmt-dev

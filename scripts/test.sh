@@ -18,3 +18,22 @@ run_suite build -DCMAKE_BUILD_TYPE=Release
 echo "== AddressSanitizer + UndefinedBehaviorSanitizer build and tests"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   run_suite build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DOCTORAY_SANITIZE=ON -DOCTORAY_BUILD_BENCHMARKS=OFF
+echo "== libFuzzer: store reader (60 s, ASan + UBSan)"
+CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DOCTORAY_FUZZ=ON -DOCTORAY_BUILD_TESTS=OFF -DOCTORAY_BUILD_BENCHMARKS=OFF
+cmake --build build-fuzz -j "$jobs" --target fuzz_store_reader
+fuzz_dir=build-fuzz/fuzz-store-reader
+rm -rf "$fuzz_dir" && mkdir -p "$fuzz_dir/corpus" "$fuzz_dir/artifacts"
+build-fuzz/bin/make_store_seeds "$fuzz_dir/seeds"
+# New inputs go to corpus/; a crash, leak, timeout or OOM input to artifacts/ and fails the run.
+if ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  build-fuzz/bin/fuzz_store_reader "$fuzz_dir/corpus" "$fuzz_dir/seeds" \
+    -max_total_time=60 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+    -artifact_prefix="$fuzz_dir/artifacts/" >"$fuzz_dir/fuzz.log" 2>&1; then
+  echo "fuzz_store_reader: no crash in 60 s ($(grep -o 'stat::number_of_executed_units: *[0-9]*' \
+    "$fuzz_dir/fuzz.log" | grep -o '[0-9]*$') executions; log $fuzz_dir/fuzz.log)"
+else
+  tail -n 60 "$fuzz_dir/fuzz.log"
+  echo "fuzz_store_reader: FAILED, reproducer in $fuzz_dir/artifacts/ (log $fuzz_dir/fuzz.log)" >&2
+  exit 1
+fi
