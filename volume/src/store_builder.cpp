@@ -42,14 +42,15 @@ template <typename T>
 struct LevelWindow {
   Index3 dims{};
   int64_t firstZ = 0;                     // level z of slices.front()
-  std::deque<std::vector<T>> slices;
+  using Slice = std::shared_ptr<const std::vector<T>>;
+  std::deque<Slice> slices;
   int64_t nextRow = 0;                    // next brick row (bz) to emit
-  std::optional<std::vector<T>> evenSlice;  // waiting for its odd partner to make a coarse slice
+  Slice evenSlice;                        // waiting for its odd partner to make a coarse slice
 
   int64_t endZ() const { return firstZ + static_cast<int64_t>(slices.size()); }
   const T* slice(int64_t z) const {
     z = std::clamp<int64_t>(z, 0, dims[2] - 1);
-    return slices[static_cast<std::size_t>(z - firstZ)].data();
+    return slices[static_cast<std::size_t>(z - firstZ)]->data();
   }
 };
 
@@ -96,7 +97,7 @@ class Builder {
       const int64_t count = std::min(slabSlices_, info.dims[2] - z);
       try {
         for (int64_t s = 0; s < count; ++s) {
-          std::vector<T> slice(static_cast<std::size_t>(sliceSamples));
+          std::vector<T> slice(static_cast<std::size_t>(sliceSamples));  // one pass of zeroing
           convert(std::span<const float>(current.data() + s * sliceSamples,
                                          static_cast<std::size_t>(sliceSamples)), slice);
           pushSlice(layout_.leafLevel(), std::move(slice));
@@ -181,13 +182,14 @@ class Builder {
   // parent row is always emitted after its children's rows).
   void pushSlice(int level, std::vector<T> slice) {
     LevelWindow<T>& w = windows_[static_cast<std::size_t>(level)];
-    w.slices.push_back(std::move(slice));
+    auto added = std::make_shared<const std::vector<T>>(std::move(slice));
+    w.slices.push_back(added);
     std::optional<std::vector<T>> coarse;
     if (level > 0) {
       if (!w.evenSlice) {
-        w.evenSlice = w.slices.back();
+        w.evenSlice = added;
       } else {
-        coarse = downsample(w, *w.evenSlice, w.slices.back());
+        coarse = downsample(w, *w.evenSlice, *added);
         w.evenSlice.reset();
       }
     }
