@@ -5,6 +5,7 @@
 #include <random>
 
 #include "memory_volume.h"
+#include "store_leaf_check.h"
 #include "octoray/dicom/error.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
@@ -125,6 +126,16 @@ TEST(StoreBuild, CodecsAreLossless) {
     buildStore(volume, path, options);
     expectStoreMatches(volume, path, 16, 1);
   }
+}
+
+TEST(StoreBuild, OddSized513x512x140LeavesAreExact) {
+  MemoryVolume volume({513, 512, 140}, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>((i * 31 + j * 17 + k * 7) % 3000 - 1024);
+  });
+  const std::string path = (test::freshTempDir("odd") / "odd.octoray").string();
+  buildStore(volume, path);
+  const StoreReader store(path);
+  EXPECT_EQ(test::expectLeavesEqualSource(volume, store), volume.info().sampleCount());
 }
 
 }  // namespace
