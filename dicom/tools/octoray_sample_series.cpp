@@ -14,45 +14,6 @@
 
 namespace {
 
-// Splits "64x64x40" or "0.5,0.5,1.25" into exactly three parts.
-std::vector<std::string> splitThree(const std::string& text, char separator, const char* option) {
-  std::vector<std::string> parts;
-  std::size_t begin = 0;
-  while (true) {
-    const std::size_t end = text.find(separator, begin);
-    parts.push_back(text.substr(begin, end - begin));
-    if (end == std::string::npos) break;
-    begin = end + 1;
-  }
-  if (parts.size() != 3) {
-    throw octoray::Error("", fmt::format("{} \"{}\": expected three values separated by '{}'",
-                                         option, text, separator));
-  }
-  return parts;
-}
-
-double parseNumber(const std::string& text, const char* option) {
-  std::size_t used = 0;
-  double value = 0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size()) {
-    throw octoray::Error("", fmt::format("{}: \"{}\" is not a number", option, text));
-  }
-  return value;
-}
-
-int parseCount(const std::string& text, const char* option) {
-  const double value = parseNumber(text, option);
-  if (value != static_cast<int>(value) || value < 1) {
-    throw octoray::Error("", fmt::format("{}: \"{}\" is not a positive integer", option, text));
-  }
-  return static_cast<int>(value);
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -74,19 +35,26 @@ int main(int argc, char** argv) {
   app.add_flag("--variable-gaps", variableGaps,
                "every third gap is 1.5 times the slice spacing (the reader resamples)");
   app.add_flag("--with-localizer", withLocalizer, "also write a coronal localizer image");
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;  // command-line mistakes exit 2, as in every octoray tool
+  }
 
   return octoray::cli::runTool("octoray-sample-series", [&] {
     using namespace octoray::dicom;
-    const std::vector<std::string> sizeParts = splitThree(size, 'x', "--size");
-    const std::vector<std::string> spacingParts = splitThree(spacing, ',', "--spacing");
+    const auto dims = octoray::cli::parseDims(size, "--size");
+    const auto spacingMm = octoray::cli::parseTriple(spacing, "--spacing");
+    for (int64_t d : dims) {
+      if (d > 65535) throw octoray::Error("", fmt::format("--size \"{}\": at most 65535", size));
+    }
     SyntheticSeriesSpec spec;
-    spec.columns = parseCount(sizeParts[0], "--size");
-    spec.rows = parseCount(sizeParts[1], "--size");
-    const int slices = parseCount(sizeParts[2], "--size");
-    spec.columnSpacingMm = parseNumber(spacingParts[0], "--spacing");
-    spec.rowSpacingMm = parseNumber(spacingParts[1], "--spacing");
-    spec.sliceSpacingMm = parseNumber(spacingParts[2], "--spacing");
+    spec.columns = static_cast<int>(dims[0]);
+    spec.rows = static_cast<int>(dims[1]);
+    const int slices = static_cast<int>(dims[2]);
+    spec.columnSpacingMm = spacingMm[0];
+    spec.rowSpacingMm = spacingMm[1];
+    spec.sliceSpacingMm = spacingMm[2];
     spec.tiltDegrees = tiltDegrees;
     spec.seed = seed;
     spec.withLocalizer = withLocalizer;

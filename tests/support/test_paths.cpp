@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cstdlib>
 
 namespace octoray::test {
@@ -20,7 +22,12 @@ std::filesystem::path pydicomTestFiles() {
 std::filesystem::path freshTempDir(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
   std::string unique = name;
-  if (info) unique = std::string(info->test_suite_name()) + "." + info->name() + "." + name;
+  if (info) {
+    unique = std::string(info->test_suite_name()) + "." + info->name() + "." + name;
+  } else {
+    // Suite-level set-up: ctest runs every test of a suite in its own process, concurrently.
+    unique = name + "." + std::to_string(::getpid());
+  }
   auto dir = std::filesystem::path(OCTORAY_BINARY_DIR) / "test-tmp" / unique;
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);

@@ -58,7 +58,9 @@ StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileB
   const auto within = [&](uint64_t offset, uint64_t length) {
     return offset >= sizeof(StoreHeader) && offset <= fileBytes && length <= fileBytes - offset;
   };
-  if (!within(h.nodeTableOffset, h.nodeTableBytes) || !within(h.provenanceOffset, h.provenanceBytes) ||
+  // Counts are compared by division: a forged nodeCount must not wrap the multiplication.
+  if (h.nodeCount > fileBytes / sizeof(NodeRecord) || !within(h.nodeTableOffset, h.nodeTableBytes) ||
+      !within(h.provenanceOffset, h.provenanceBytes) ||
       h.nodeTableBytes != h.nodeCount * sizeof(NodeRecord)) {
     throw Error(path, "header: node table or provenance outside the file");
   }

@@ -65,50 +65,23 @@ double peakRssMiB() {
   return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
 }
 
-std::vector<double> parseList(const std::string& text, char separator, std::size_t count,
-                              const char* what) {
-  std::vector<double> values;
-  std::size_t begin = 0;
-  while (begin <= text.size()) {
-    const std::size_t end = text.find(separator, begin);
-    const std::string part = text.substr(begin, end == std::string::npos ? end : end - begin);
-    char* stop = nullptr;
-    const double v = std::strtod(part.c_str(), &stop);
-    if (part.empty() || stop != part.c_str() + part.size() || !std::isfinite(v) || v <= 0) {
-      throw Error("", fmt::format("{} '{}': expected {} positive numbers separated by '{}'", what,
-                                  text, count, separator));
-    }
-    values.push_back(v);
-    if (end == std::string::npos) break;
-    begin = end + 1;
-  }
-  if (values.size() != count) {
-    throw Error("", fmt::format("{} '{}': expected {} values", what, text, count));
-  }
-  return values;
-}
-
 OpenOptions openOptions(const Arguments& a) {
   OpenOptions o;
   o.series = a.series;
   o.stack.sliceSpacingMm = a.sliceSpacingMm;
   if (!a.rawDims.empty()) {
     o.raw = true;
-    const auto dims = parseList(a.rawDims, 'x', 3, "--raw-dims");
-    for (int i = 0; i < 3; ++i) {
-      if (dims[i] != std::floor(dims[i])) throw Error("", "--raw-dims must be whole numbers");
-      o.rawOptions.dims[i] = static_cast<int64_t>(dims[i]);
-    }
+    o.rawOptions.dims = cli::parseDims(a.rawDims, "--raw-dims");
     o.rawOptions.sampleType = parseSampleType(a.rawType);
     o.rawOptions.bigEndian = a.rawBigEndian;
     o.rawOptions.headerBytes = a.rawHeaderBytes;
     if (!a.rawSpacing.empty()) {
-      const auto s = parseList(a.rawSpacing, ',', 3, "--raw-spacing");
+      const auto s = cli::parseTriple(a.rawSpacing, "--raw-spacing");
       o.rawOptions.spacingMm = {s[0], s[1], s[2]};
     }
   }
   if (!a.tiffSpacing.empty()) {
-    const auto s = parseList(a.tiffSpacing, ',', 3, "--tiff-spacing");
+    const auto s = cli::parseTriple(a.tiffSpacing, "--tiff-spacing");
     o.tiffSpacingMm = {s[0], s[1], s[2]};
   }
   return o;
@@ -464,7 +437,8 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help exits 0; every command-line mistake exits 2 (docs/import-json.md).
+    return app.exit(e) == 0 ? 0 : 2;
   }
   if (!a.list && !a.inspect && a.exportPath.empty() && a.storePath.empty()) {
     std::cerr << "octoray-import: choose one of --list, --inspect, --export OUT or -o OUT\n"

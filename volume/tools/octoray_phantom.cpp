@@ -20,47 +20,6 @@
 
 namespace {
 
-// Splits "2048x2048x1024" or "0.5,0.5,1" into exactly three parts.
-std::vector<std::string> splitThree(const std::string& text, char separator, const char* option) {
-  std::vector<std::string> parts;
-  std::size_t begin = 0;
-  while (true) {
-    const std::size_t end = text.find(separator, begin);
-    parts.push_back(text.substr(begin, end - begin));
-    if (end == std::string::npos) break;
-    begin = end + 1;
-  }
-  if (parts.size() != 3) {
-    throw octoray::Error("", fmt::format("{} \"{}\": expected three values separated by '{}'",
-                                         option, text, separator));
-  }
-  return parts;
-}
-
-double parseNumber(const std::string& text, const char* option) {
-  std::size_t used = 0;
-  double value = 0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size()) {
-    throw octoray::Error("", fmt::format("{}: \"{}\" is not a number", option, text));
-  }
-  return value;
-}
-
-int64_t parseCount(const std::string& text, const char* option) {
-  const double value = parseNumber(text, option);
-  if (!(value >= 1 && value <= 1048576) ||
-      value != static_cast<double>(static_cast<int64_t>(value))) {
-    throw octoray::Error("",
-                         fmt::format("{}: \"{}\" is not an integer in [1, 1048576]", option, text));
-  }
-  return static_cast<int64_t>(value);
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -86,18 +45,18 @@ int main(int argc, char** argv) {
     return app.exit(e);  // --help
   } catch (const CLI::ParseError& e) {
     fmt::print(stderr, "octoray-phantom: {}\nRun with --help for more information.\n", e.what());
-    return 1;
+    return 2;
   }
 
   return octoray::cli::runTool("octoray-phantom", [&] {
-    const std::vector<std::string> sizeParts = splitThree(size, 'x', "--size");
-    const std::vector<std::string> spacingParts = splitThree(spacing, ',', "--spacing");
     octoray::volume::PhantomOptions options;
     options.seed = seed;
-    for (int a = 0; a < 3; ++a) options.dims[a] = parseCount(sizeParts[a], "--size");
-    options.spacingMm = {parseNumber(spacingParts[0], "--spacing"),
-                         parseNumber(spacingParts[1], "--spacing"),
-                         parseNumber(spacingParts[2], "--spacing")};
+    options.dims = octoray::cli::parseDims(size, "--size");
+    for (int64_t d : options.dims) {
+      if (d > 1048576) throw octoray::Error("", fmt::format("--size \"{}\": at most 1048576", size));
+    }
+    const auto spacingMm = octoray::cli::parseTriple(spacing, "--spacing");
+    options.spacingMm = {spacingMm[0], spacingMm[1], spacingMm[2]};
 
     std::optional<tbb::global_control> threadLimit;
     if (threads > 0) {

@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
 #include <new>
 
@@ -23,6 +25,48 @@ int runTool(const char* toolName, const std::function<int()>& body) {
     fmt::print(stderr, "{}: {}\n", toolName, e.what());
   }
   return 1;
+}
+
+namespace {
+
+std::array<double, 3> parseThree(const std::string& text, char separator, const char* option) {
+  std::array<double, 3> values{};
+  std::size_t begin = 0;
+  for (std::size_t n = 0; n < 3; ++n) {
+    const std::size_t end = text.find(separator, begin);
+    if ((n < 2) == (end == std::string::npos)) {
+      throw Error("", fmt::format("{} \"{}\": expected three values separated by '{}'", option,
+                                  text, separator));
+    }
+    const std::string part = text.substr(begin, end == std::string::npos ? end : end - begin);
+    char* stop = nullptr;
+    const double v = part.empty() ? 0 : std::strtod(part.c_str(), &stop);
+    if (part.empty() || stop != part.c_str() + part.size() || !std::isfinite(v) || v <= 0) {
+      throw Error("", fmt::format("{} \"{}\": \"{}\" is not a positive number", option, text,
+                                  part));
+    }
+    values[n] = v;
+    begin = end + 1;
+  }
+  return values;
+}
+
+}  // namespace
+
+std::array<int64_t, 3> parseDims(const std::string& text, const char* option) {
+  const std::array<double, 3> v = parseThree(text, 'x', option);
+  std::array<int64_t, 3> dims{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    if (v[a] != std::floor(v[a]) || v[a] > 9.0e15) {
+      throw Error("", fmt::format("{} \"{}\": sizes must be whole numbers", option, text));
+    }
+    dims[a] = static_cast<int64_t>(v[a]);
+  }
+  return dims;
+}
+
+std::array<double, 3> parseTriple(const std::string& text, const char* option) {
+  return parseThree(text, ',', option);
 }
 
 ProgressBar::ProgressBar(std::string label)

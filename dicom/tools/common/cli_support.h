@@ -2,8 +2,10 @@
 // What every octoray command-line tool shares: the error policy at main (one clear message,
 // non-zero exit, never a crash) and a progress bar drawn only when a person is watching.
 
+#include <array>
 #include <chrono>
 #include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -12,6 +14,12 @@ namespace octoray::cli {
 // Runs `body`, turning octoray::Error and any other exception into "<tool>: <message>" on
 // stderr and exit status 1. Returns body's exit status otherwise.
 int runTool(const char* toolName, const std::function<int()>& body);
+
+// "512x512x140": three positive integers separated by 'x'. Throws octoray::Error naming
+// `option` otherwise.
+std::array<int64_t, 3> parseDims(const std::string& text, const char* option);
+// "0.5,0.5,1.25": three positive finite numbers separated by ','.
+std::array<double, 3> parseTriple(const std::string& text, const char* option);
 
 // A one-line progress bar with rate and ETA on stderr, active only when stdout and stderr are
 // terminals (scripts and tests see clean output).
