@@ -246,6 +246,10 @@ std::string groupKey(const FileHeader& h) {
     key += "|no-orientation";
   }
   if (h.pixelSpacing) key += fmt::format("|{:.5f}|{:.5f}", (*h.pixelSpacing)[0], (*h.pixelSpacing)[1]);
+  // A localiser filed under the axial series' UID stays apart even in the same orientation.
+  if (std::find(h.imageType.begin(), h.imageType.end(), "LOCALIZER") != h.imageType.end()) {
+    key += "|localizer";
+  }
   return key;
 }
 
