@@ -13,7 +13,7 @@ namespace octoray::transfer::detail {
 
 // octoray JSON (docs/transfer-function-json.md).
 std::vector<TransferFunction> parseOctorayJson(const nlohmann::json& root, const std::string& path);
-nlohmann::json toOctorayJson(const std::vector<TransferFunction>& tfs);
+std::string toOctorayJsonText(const std::vector<TransferFunction>& tfs);
 
 // 3D Slicer presets.xml: one function per <VolumeProperty> element.
 std::vector<TransferFunction> parseSlicerXml(const std::string& text, const std::string& path);

@@ -3,6 +3,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <set>
@@ -14,6 +15,7 @@ namespace octoray::transfer::detail {
 namespace {
 
 using nlohmann::json;
+using nlohmann::ordered_json;
 
 constexpr const char* kFormatName = "octoray-transfer-function";
 constexpr int kFormatVersion = 1;
@@ -141,6 +143,35 @@ double tidy(float value) {
   return widened;
 }
 
+// Indented JSON with each control point ([value, r, g, b]) on one line, so a preset reads
+// as a table and diffs line by line.
+void writeReadable(const ordered_json& value, int depth, std::string& out) {
+  const std::string indent(static_cast<std::size_t>(depth + 1) * 2, ' ');
+  const std::string closing(static_cast<std::size_t>(depth) * 2, ' ');
+  const bool flat = value.is_array() && std::all_of(value.begin(), value.end(),
+                                                    [](const ordered_json& v) { return v.is_primitive(); });
+  if (value.is_primitive() || value.empty() || flat) {
+    out += value.dump();
+  } else if (value.is_array()) {
+    out += "[\n";
+    for (std::size_t i = 0; i < value.size(); ++i) {
+      out += indent;
+      writeReadable(value[i], depth + 1, out);
+      out += i + 1 < value.size() ? ",\n" : "\n";
+    }
+    out += closing + "]";
+  } else {
+    out += "{\n";
+    std::size_t i = 0;
+    for (const auto& item : value.items()) {
+      out += indent + ordered_json(item.key()).dump() + ": ";
+      writeReadable(item.value(), depth + 1, out);
+      out += ++i < value.size() ? ",\n" : "\n";
+    }
+    out += closing + "}";
+  }
+}
+
 }  // namespace
 
 std::vector<TransferFunction> parseOctorayJson(const json& root, const std::string& path) {
@@ -171,21 +202,21 @@ std::vector<TransferFunction> parseOctorayJson(const json& root, const std::stri
   return tfs;
 }
 
-json toOctorayJson(const std::vector<TransferFunction>& tfs) {
-  json list = json::array();
+std::string toOctorayJsonText(const std::vector<TransferFunction>& tfs) {
+  ordered_json list = ordered_json::array();
   for (const TransferFunction& tf : tfs) {
-    json object;
+    ordered_json object;
     object["name"] = tf.name;
     if (!tf.description.empty()) object["description"] = tf.description;
     object["unitDistanceMm"] = tf.unitDistanceMm;
     object["interpolation"] = tf.interpolation == Interpolation::Linear ? "linear" : "nearest";
-    json color = json::array();
+    ordered_json color = ordered_json::array();
     for (const ColorPoint& p : tf.color) color.push_back({p.value, tidy(p.r), tidy(p.g), tidy(p.b)});
     object["color"] = std::move(color);
-    json opacity = json::array();
+    ordered_json opacity = ordered_json::array();
     for (const OpacityPoint& p : tf.opacity) opacity.push_back({p.value, tidy(p.alpha)});
     object["opacity"] = std::move(opacity);
-    json gradient = json::array();
+    ordered_json gradient = ordered_json::array();
     for (const GradientOpacityPoint& p : tf.gradientOpacity) {
       gradient.push_back({p.magnitude, tidy(p.alpha)});
     }
@@ -197,7 +228,11 @@ json toOctorayJson(const std::vector<TransferFunction>& tfs) {
                           {"specularPower", tidy(tf.material.specularPower)}};
     list.push_back(std::move(object));
   }
-  return {{"format", kFormatName}, {"version", kFormatVersion}, {"transferFunctions", list}};
+  const ordered_json root = {
+      {"format", kFormatName}, {"version", kFormatVersion}, {"transferFunctions", list}};
+  std::string text;
+  writeReadable(root, 0, text);
+  return text + "\n";
 }
 
 }  // namespace octoray::transfer::detail

@@ -120,8 +120,10 @@ void validate(const TransferFunction& tf, const std::string& path) {
   }
   for (std::size_t i = 0; i < tf.gradientOpacity.size(); ++i) {
     const GradientOpacityPoint& p = tf.gradientOpacity[i];
-    require(finite(p.magnitude) && p.magnitude >= 0, path, field("gradientOpacity", i),
-            fmt::format("magnitude {} is not a finite non-negative number", p.magnitude));
+    // Negative magnitudes never occur, but real Slicer presets place points there to shape
+    // the function near 0, so they are accepted.
+    require(finite(p.magnitude), path, field("gradientOpacity", i),
+            fmt::format("magnitude {} is not a finite number", p.magnitude));
     require(i == 0 || p.magnitude >= tf.gradientOpacity[i - 1].magnitude, path,
             field("gradientOpacity", i),
             fmt::format("magnitude {} is below the previous point's {} (points must be sorted)",

@@ -147,7 +147,7 @@ void saveTransferFunctions(const std::vector<TransferFunction>& tfs, const fs::p
   {
     std::ofstream file(temporary, std::ios::binary | std::ios::trunc);
     if (!file) throw Error(path.string(), "cannot open for writing");
-    file << detail::toOctorayJson(tfs).dump(2) << '\n';
+    file << detail::toOctorayJsonText(tfs);
     file.flush();
     if (!file) {
       std::error_code ignored;
