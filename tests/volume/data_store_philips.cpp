@@ -28,6 +28,7 @@ void roundTrip(const std::filesystem::path& folder, int brickSize) {
     for (int c = 0; c < 4; ++c) {
       EXPECT_EQ(store.patientFromIndex().m[r][c], source->info().patientFromIndex.m[r][c]);
     }
+  test::expectStoreValid(path);
   auto again = dicom::openDicomSeries(series);
   EXPECT_EQ(test::expectLeavesEqualSource(*again, store), source->info().sampleCount());
 }

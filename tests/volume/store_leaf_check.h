@@ -7,6 +7,7 @@
 
 #include "octoray/dicom/volume_source.h"
 #include "octoray/volume/store_reader.h"
+#include "octoray/volume/store_validator.h"
 
 namespace octoray::test {
 
@@ -45,6 +46,16 @@ inline int64_t expectLeavesEqualSource(VolumeSource& source, const volume::Store
       }
   }
   return checked;
+}
+
+// Every store a test builds must also pass octoray-validate's checks.
+inline void expectStoreValid(const std::string& path) {
+  const volume::ValidationReport report = volume::validateStore(path);
+  for (const auto& check : report.checks) {
+    EXPECT_TRUE(check.passed()) << path << ": check " << check.name << " failed"
+                                << (check.failures.empty() ? "" : ": " + check.failures[0].message);
+  }
+  EXPECT_TRUE(report.passed()) << path;
 }
 
 }  // namespace octoray::test

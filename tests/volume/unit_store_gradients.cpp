@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "memory_volume.h"
+#include "store_leaf_check.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"
@@ -29,6 +30,7 @@ TEST(StoreGradients, LinearRampGivesItsPatientSpaceGradientEverywhereInside) {
   options.border = 2;
   options.gradients = true;
   buildStore(volume, path, options);
+  test::expectStoreValid(path);
   const StoreReader store(path);
   ASSERT_TRUE(store.header().flags & kStoreHasGradients);
   const double scale = store.header().gradientScale;

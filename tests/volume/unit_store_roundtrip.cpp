@@ -47,6 +47,7 @@ std::vector<std::vector<int64_t>> referenceLevels(const MemoryVolume& v, const O
 }
 
 void expectStoreMatches(const MemoryVolume& v, const std::string& path, int brickSize, int border) {
+  test::expectStoreValid(path);
   const StoreReader store(path);
   const OctreeLayout& layout = store.layout();
   ASSERT_EQ(store.header().brickSize, static_cast<uint32_t>(brickSize));
@@ -136,6 +137,7 @@ TEST(StoreBuild, OddSized513x512x140LeavesAreExact) {
   buildStore(volume, path);
   const StoreReader store(path);
   EXPECT_EQ(test::expectLeavesEqualSource(volume, store), volume.info().sampleCount());
+  test::expectStoreValid(path);
 }
 
 }  // namespace
