@@ -41,9 +41,11 @@ TEST(SeriesGrouping, LocalizerFiledUnderTheAxialUidInTheSameOrientationStaysApar
     if (image.object == SyntheticObject::Localizer) localizer = image.path;
   }
   ASSERT_FALSE(localizer.empty());
-  // The localiser now claims the axial series and an axial orientation.
+  // The localiser now claims the axial series, an axial orientation and the axial pixel
+  // spacing: only its ImageType still tells it apart.
   rewrite(localizer, {{gdcm::Tag(0x0020, 0x000e), written.seriesUid},
-                      {gdcm::Tag(0x0020, 0x0037), "1\\0\\0\\0\\1\\0"}});
+                      {gdcm::Tag(0x0020, 0x0037), "1\\0\\0\\0\\1\\0"},
+                      {gdcm::Tag(0x0028, 0x0030), "0.5\\0.5"}});
 
   const DicomScan scan = scanDicom(dir);
   ASSERT_EQ(scan.series.size(), 2u);
