@@ -90,37 +90,6 @@ std::optional<int> unsignedShort(const gdcm::File& /*file*/, const gdcm::DataSet
   return static_cast<int>(v);
 }
 
-void vetWithGdcm(const std::string& path) {
-  const pid_t pid = ::fork();
-  if (pid < 0) throw Error(path, std::string("cannot fork to vet the file: ") + std::strerror(errno));
-  if (pid == 0) {
-    // Child: parse as the real reader will, then leave without running any exit handlers.
-    const int devNull = ::open("/dev/null", O_WRONLY);
-    if (devNull >= 0) ::dup2(devNull, STDERR_FILENO);
-    int code = 0;
-    try {
-      // The image model, as decoding builds it: this parses every element, the pixel data
-      // fragments included, and the attributes GDCM derives the image from.
-      gdcm::ImageReader image;
-      image.SetFileName(path.c_str());
-      if (!image.Read()) {
-        gdcm::Reader plain;  // not an image: still parse it as the scanner will
-        plain.SetFileName(path.c_str());
-        code = plain.Read() ? 0 : 1;
-      }
-    } catch (...) {
-      code = 1;
-    }
-    ::_exit(code);
-  }
-  int status = 0;
-  while (::waitpid(pid, &status, 0) < 0) {
-    if (errno != EINTR) throw Error(path, "lost the vetting process");
-  }
-  if (WIFSIGNALED(status)) {
-    throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
-  }
-}
 
 std::size_t pixelValueOffset(const std::string& path) {
   gdcm::Reader reader;

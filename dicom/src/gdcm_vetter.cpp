@@ -1,0 +1,158 @@
+// Vetting files with GDCM in child processes. Debian's GDCM is built with assertions, and a
+// truncated or malformed file can make it abort() the process that parses it. Each file is
+// therefore first parsed by a long-lived child (one fork serves many files: a fork costs far
+// more than a parse); when the child dies on a file, that file is reported and a new child
+// is started for the next one.
+
+#include <fcntl.h>
+#include <gdcmImageReader.h>
+#include <gdcmReader.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include "gdcm_support.h"
+#include "octoray/dicom/error.h"
+
+namespace octoray::dicom::detail {
+namespace {
+
+bool sendAll(int fd, const void* data, std::size_t bytes) {
+  const auto* p = static_cast<const char*>(data);
+  while (bytes > 0) {
+    const ssize_t n = ::send(fd, p, bytes, MSG_NOSIGNAL);  // a dead peer must not SIGPIPE us
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    p += n;
+    bytes -= static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
+bool receiveAll(int fd, void* data, std::size_t bytes) {
+  auto* p = static_cast<char*>(data);
+  while (bytes > 0) {
+    const ssize_t n = ::recv(fd, p, bytes, 0);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    p += n;
+    bytes -= static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
+// In the child: parse as the real readers will (the image model, pixel data fragments
+// included; or the plain data set of a non-image). 0 = parsed, 1 = GDCM reported failure.
+uint8_t parseInChild(const std::string& path) {
+  try {
+    gdcm::ImageReader image;
+    image.SetFileName(path.c_str());
+    if (image.Read()) return 0;
+    gdcm::Reader plain;
+    plain.SetFileName(path.c_str());
+    return plain.Read() ? 0 : 1;
+  } catch (...) {
+    return 1;
+  }
+}
+
+[[noreturn]] void childLoop(int fd) {
+  const int devNull = ::open("/dev/null", O_WRONLY);
+  if (devNull >= 0) ::dup2(devNull, STDERR_FILENO);  // GDCM's assertion text is not ours to print
+  while (true) {
+    uint32_t length = 0;
+    if (!receiveAll(fd, &length, sizeof length) || length > (1u << 20)) ::_exit(0);
+    std::string path(length, '\0');
+    if (!receiveAll(fd, path.data(), length)) ::_exit(0);
+    const uint8_t status = parseInChild(path);
+    if (!sendAll(fd, &status, 1)) ::_exit(0);
+  }
+}
+
+class Vetter {
+ public:
+  ~Vetter() { stop(); }
+
+  // True when GDCM survives parsing `path` (whether or not it understood it).
+  bool survives(const std::string& path) {
+    if (pid_ < 0) start(path);
+    const auto length = static_cast<uint32_t>(path.size());
+    uint8_t status = 0;
+    if (sendAll(fd_, &length, sizeof length) && sendAll(fd_, path.data(), path.size()) &&
+        receiveAll(fd_, &status, 1)) {
+      return true;
+    }
+    stop();  // the child died on this file; the next call starts a fresh one
+    return false;
+  }
+
+ private:
+  void start(const std::string& path) {
+    int fds[2];
+    if (::socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, fds) != 0) {
+      throw Error(path, std::string("cannot create a socket to vet the file: ") + std::strerror(errno));
+    }
+    const pid_t pid = ::fork();
+    if (pid < 0) {
+      ::close(fds[0]);
+      ::close(fds[1]);
+      throw Error(path, std::string("cannot fork to vet the file: ") + std::strerror(errno));
+    }
+    if (pid == 0) {
+      ::close(fds[0]);
+      childLoop(fds[1]);
+    }
+    ::close(fds[1]);
+    pid_ = pid;
+    fd_ = fds[0];
+  }
+
+  void stop() {
+    if (fd_ >= 0) ::close(fd_);  // the child reads end-of-file and exits
+    fd_ = -1;
+    if (pid_ > 0) {
+      int status = 0;
+      while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
+      }
+    }
+    pid_ = -1;
+  }
+
+  pid_t pid_ = -1;
+  int fd_ = -1;
+};
+
+// Idle vetters, one per thread that is vetting at the same time.
+std::mutex gPoolMutex;
+std::vector<std::unique_ptr<Vetter>>& pool() {
+  static auto* idle = new std::vector<std::unique_ptr<Vetter>>();  // children end with us
+  return *idle;
+}
+
+}  // namespace
+
+void vetWithGdcm(const std::string& path) {
+  std::unique_ptr<Vetter> vetter;
+  {
+    std::lock_guard lock(gPoolMutex);
+    if (!pool().empty()) {
+      vetter = std::move(pool().back());
+      pool().pop_back();
+    }
+  }
+  if (!vetter) vetter = std::make_unique<Vetter>();
+  const bool survived = vetter->survives(path);
+  {
+    std::lock_guard lock(gPoolMutex);
+    pool().push_back(std::move(vetter));
+  }
+  if (!survived) throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
+}
+
+}  // namespace octoray::dicom::detail
