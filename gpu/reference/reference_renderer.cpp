@@ -1,0 +1,406 @@
+#include "octoray/gpu/reference/reference_renderer.h"
+
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+
+#include "octoray/dicom/error.h"
+
+namespace octoray::gpu::reference {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+// Isosurface refinement stops when the bracket is shorter than this, in index units.
+constexpr double kIsoToleranceVoxels = 1e-6;
+
+// Piecewise-linear interpolation over sorted control points, in double precision: clamped at
+// the ends; where points share a value the later one applies from that value on.
+template <typename Points, typename Key, typename Value>
+double interpolatePoints(const Points& points, double x, Key key, Value value) {
+  const auto next = std::upper_bound(points.begin(), points.end(), x,
+                                     [&](double v, const auto& p) { return v < key(p); });
+  if (next == points.begin()) return value(points.front());
+  if (next == points.end()) return value(points.back());
+  const auto& p0 = *(next - 1);
+  const auto& p1 = *next;
+  const double w = (x - key(p0)) / (key(p1) - key(p0));
+  return value(p0) + w * (value(p1) - value(p0));
+}
+
+// Everything a ray needs, computed once per frame.
+struct Frame {
+  const ReferenceVolume* volume = nullptr;
+  const transfer::TransferFunction* tf = nullptr;
+  RenderOptions options;
+  Mat4 indexFromPatient;
+  double stepMm = 0;
+  bool shade = false;
+  bool useGradientOpacity = false;
+  bool needGradient = false;
+};
+
+struct RayResult {
+  double r = 0, g = 0, b = 0, a = 0;
+  double depth = kInf;
+  double value = kNaN;
+  int64_t samples = 0;
+  bool hit = false;
+};
+
+Vec3 indexPoint(const Vec3& origin, const Vec3& direction, double t) {
+  return origin + t * direction;
+}
+
+double sampleAt(const ReferenceVolume& v, const Vec3& p) { return v.sample(p.x, p.y, p.z); }
+
+// Gradient of the trilinear interpolant in patient space (value units per mm): central
+// differences of +-1 voxel in index space, then the inverse transpose of the linear part.
+Vec3 gradientPatient(const Frame& f, const Vec3& p) {
+  const ReferenceVolume& v = *f.volume;
+  const double gi = 0.5 * (v.sample(p.x + 1, p.y, p.z) - v.sample(p.x - 1, p.y, p.z));
+  const double gj = 0.5 * (v.sample(p.x, p.y + 1, p.z) - v.sample(p.x, p.y - 1, p.z));
+  const double gk = 0.5 * (v.sample(p.x, p.y, p.z + 1) - v.sample(p.x, p.y, p.z - 1));
+  const auto& m = f.indexFromPatient.m;  // linear part = inverse of patientFromIndex's
+  return {m[0][0] * gi + m[1][0] * gj + m[2][0] * gk, m[0][1] * gi + m[1][1] * gj + m[2][1] * gk,
+          m[0][2] * gi + m[1][2] * gj + m[2][2] * gk};
+}
+
+// Phong with a headlight: light and viewer both along -rayDirection, two-sided.
+Classification shadePhong(const transfer::Material& material, const Classification& c,
+                          const Vec3& gradient, const Vec3& rayDirection) {
+  const double magnitude = length(gradient);
+  double diffuse = 0, specular = 0;
+  if (magnitude > 0 && std::isfinite(magnitude)) {
+    const Vec3 n = (1.0 / magnitude) * gradient;
+    const double nl = std::abs(dot(n, rayDirection));  // l = v = -rayDirection
+    diffuse = nl;
+    // Reflection of l about n, against v: 2 (n.l)^2 - 1 when l = v.
+    const double rv = 2.0 * nl * nl - 1.0;
+    specular = rv > 0 ? std::pow(rv, static_cast<double>(material.specularPower)) : 0.0;
+  }
+  const double lit = material.ambient + material.diffuse * diffuse;
+  const double spec = material.specular * specular;
+  return {c.r * lit + spec, c.g * lit + spec, c.b * lit + spec, c.alpha};
+}
+
+RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& directionPatient,
+                   const Chord& chord) {
+  RayResult out;
+  const transfer::TransferFunction& tf = *f.tf;
+  const double chordMm = chord.tFar - chord.tNear;
+  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
+  const int64_t n = static_cast<int64_t>(steps);
+  const double delta = chordMm / steps;
+  const double ratio = delta / tf.unitDistanceMm;
+  const double stopAt = f.options.earlyTermination;
+  double transmittance = 1.0;
+  for (int64_t s = 0; s < n; ++s) {
+    const double t = chord.tNear + (static_cast<double>(s) + 0.5) * delta;
+    const Vec3 p = indexPoint(o, d, t);
+    const double value = sampleAt(*f.volume, p);
+    ++out.samples;
+    Classification c = classify(tf, value);
+    if (!(c.alpha > 0)) continue;
+    if (f.needGradient) {
+      const Vec3 g = gradientPatient(f, p);
+      out.samples += 6;
+      const double magnitude = length(g);
+      if (f.useGradientOpacity) c.alpha *= gradientOpacity(tf, magnitude);
+      if (f.options.boundary.enabled) {
+        const BoundaryEnhancement& be = f.options.boundary;
+        c.alpha *= be.kC + be.kS * std::pow(magnitude, be.kE);
+      }
+      c.alpha = std::clamp(c.alpha, 0.0, 1.0);
+      if (f.shade) c = shadePhong(tf.material, c, g, directionPatient);
+    }
+    const double alpha = correctOpacity(c.alpha, ratio);
+    if (!(alpha > 0)) continue;
+    if (out.depth == kInf) out.depth = t;
+    const double weight = transmittance * alpha;
+    out.r += weight * c.r;
+    out.g += weight * c.g;
+    out.b += weight * c.b;
+    transmittance *= 1.0 - alpha;
+    if (transmittance == 0.0 || (stopAt < 1.0 && 1.0 - transmittance >= stopAt)) break;
+  }
+  out.a = 1.0 - transmittance;
+  return out;
+}
+
+RayResult marchIso(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& directionPatient,
+                   const Chord& chord) {
+  RayResult out;
+  const double iso = f.options.isoValue;
+  const double voxelsPerMm = length(d);
+  const double chordMm = chord.tFar - chord.tNear;
+  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
+  const int64_t n = static_cast<int64_t>(steps);
+  const double delta = chordMm / steps;
+  auto excess = [&](double t) {
+    ++out.samples;
+    return sampleAt(*f.volume, indexPoint(o, d, t)) - iso;
+  };
+  double ta = chord.tNear;
+  double fa = excess(ta);
+  double hit = fa == 0.0 ? ta : kNaN;
+  for (int64_t s = 1; s <= n && std::isnan(hit); ++s) {
+    const double tb = s == n ? chord.tFar : chord.tNear + static_cast<double>(s) * delta;
+    const double fb = excess(tb);
+    if (fb == 0.0) {
+      hit = tb;
+    } else if ((fa < 0) != (fb < 0)) {
+      // Bisection keeps a bracket with a sign change; the last step is the linear root.
+      double lo = ta, hi = tb, flo = fa, fhi = fb;
+      while ((hi - lo) * voxelsPerMm > kIsoToleranceVoxels) {
+        const double mid = 0.5 * (lo + hi);
+        if (mid <= lo || mid >= hi) break;
+        const double fm = excess(mid);
+        if (fm == 0.0) {
+          lo = hi = mid;
+          break;
+        }
+        if ((fm < 0) == (flo < 0)) {
+          lo = mid;
+          flo = fm;
+        } else {
+          hi = mid;
+          fhi = fm;
+        }
+      }
+      hit = lo == hi ? lo : lo + (hi - lo) * (flo / (flo - fhi));
+    }
+    ta = tb;
+    fa = fb;
+  }
+  if (std::isnan(hit)) return out;
+  const Vec3 p = indexPoint(o, d, hit);
+  Classification c = classify(*f.tf, iso);
+  c.alpha = 1.0;
+  if (f.shade) {
+    c = shadePhong(f.tf->material, c, gradientPatient(f, p), directionPatient);
+    out.samples += 6;
+  }
+  out.r = c.r;
+  out.g = c.g;
+  out.b = c.b;
+  out.a = 1.0;
+  out.depth = hit;
+  out.value = iso;
+  return out;
+}
+
+// Where the chord crosses the voxel-centre planes of one axis, within (tNear, tFar).
+void planeCrossings(double origin, double direction, int64_t dim, const Chord& chord,
+                    std::vector<double>& out) {
+  if (direction == 0.0 || dim < 2) return;
+  const double a = origin + chord.tNear * direction;
+  const double b = origin + chord.tFar * direction;
+  const double lo = std::max(0.0, std::ceil(std::min(a, b)));
+  const double hi = std::min(static_cast<double>(dim - 1), std::floor(std::max(a, b)));
+  for (double plane = lo; plane <= hi; plane += 1.0) {
+    const double t = (plane - origin) / direction;
+    if (t > chord.tNear && t < chord.tFar) out.push_back(t);
+  }
+}
+
+RayResult marchMip(const Frame& f, const Vec3& o, const Vec3& d, const Chord& chord) {
+  RayResult out;
+  std::vector<double> cuts{chord.tNear, chord.tFar};
+  const auto& dims = f.volume->dims();
+  planeCrossings(o.x, d.x, dims[0], chord, cuts);
+  planeCrossings(o.y, d.y, dims[1], chord, cuts);
+  planeCrossings(o.z, d.z, dims[2], chord, cuts);
+  std::sort(cuts.begin(), cuts.end());
+  double best = -kInf, bestT = chord.tNear;
+  auto consider = [&](double t) {
+    const double v = sampleAt(*f.volume, indexPoint(o, d, t));
+    ++out.samples;
+    if (v > best) {
+      best = v;
+      bestT = t;
+    }
+    return v;
+  };
+  consider(cuts.front());
+  for (std::size_t i = 1; i < cuts.size(); ++i) {
+    const double ta = cuts[i - 1], tb = cuts[i];
+    const double h = tb - ta;
+    if (!(h > 0)) continue;
+    // The interpolant is a cubic in u = 3 (t - ta) / h on [0, 3]; from its values at u = 0..3
+    // (Newton forward differences) its derivative's roots are the interior candidates.
+    const double v0 = sampleAt(*f.volume, indexPoint(o, d, ta));
+    const double v1 = sampleAt(*f.volume, indexPoint(o, d, ta + h / 3.0));
+    const double v2 = sampleAt(*f.volume, indexPoint(o, d, ta + 2.0 * h / 3.0));
+    out.samples += 3;
+    const double v3 = sampleAt(*f.volume, indexPoint(o, d, tb));
+    const double d1 = v1 - v0, d2 = v2 - 2 * v1 + v0, d3 = v3 - 3 * v2 + 3 * v1 - v0;
+    const double qa = 0.5 * d3, qb = d2 - d3, qc = d1 - 0.5 * d2 + d3 / 3.0;
+    double roots[2];
+    int count = 0;
+    const double scale = std::abs(qa) + std::abs(qb) + std::abs(qc);
+    if (std::abs(qa) > 1e-12 * scale) {
+      const double disc = qb * qb - 4 * qa * qc;
+      if (disc >= 0) {
+        // Numerically stable pair of roots.
+        const double q = -0.5 * (qb + std::copysign(std::sqrt(disc), qb));
+        roots[count++] = q / qa;
+        if (q != 0) roots[count++] = qc / q;
+      }
+    } else if (std::abs(qb) > 1e-12 * scale) {
+      roots[count++] = -qc / qb;
+    }
+    for (int r = 0; r < count; ++r) {
+      if (roots[r] > 0 && roots[r] < 3) consider(ta + roots[r] * h / 3.0);
+    }
+    consider(tb);  // after the interior candidates: the first t of the maximum is kept
+  }
+  const Classification c = classify(*f.tf, best);
+  out.r = c.r * c.alpha;
+  out.g = c.g * c.alpha;
+  out.b = c.b * c.alpha;
+  out.a = c.alpha;
+  out.depth = bestT;
+  out.value = best;
+  return out;
+}
+
+void checkOptions(const RenderOptions& o, const transfer::TransferFunction& tf) {
+  if (!(o.stepMm >= 0 && std::isfinite(o.stepMm))) {
+    throw Error("", fmt::format("step {} mm must be positive (or 0 for the default)", o.stepMm));
+  }
+  if (!(o.earlyTermination > 0 && o.earlyTermination <= 1)) {
+    throw Error("", fmt::format("early termination {} must be in (0, 1]", o.earlyTermination));
+  }
+  if (o.mode == RenderMode::Iso && !std::isfinite(o.isoValue)) {
+    throw Error("", "the isovalue must be finite");
+  }
+  if (o.boundary.enabled && !(std::isfinite(o.boundary.kC) && std::isfinite(o.boundary.kS) &&
+                              std::isfinite(o.boundary.kE) && o.boundary.kE >= 0)) {
+    throw Error("", "boundary enhancement: kC, kS must be finite and kE finite and >= 0");
+  }
+  if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
+    throw Error("", fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
+  }
+}
+
+}  // namespace
+
+Classification classify(const transfer::TransferFunction& tf, double value) {
+  Classification c;
+  if (std::isnan(value)) return c;
+  if (!tf.color.empty()) {
+    auto key = [](const transfer::ColorPoint& p) { return p.value; };
+    c.r = interpolatePoints(tf.color, value, key, [](const auto& p) { return double{p.r}; });
+    c.g = interpolatePoints(tf.color, value, key, [](const auto& p) { return double{p.g}; });
+    c.b = interpolatePoints(tf.color, value, key, [](const auto& p) { return double{p.b}; });
+  }
+  if (!tf.opacity.empty()) {
+    c.alpha = interpolatePoints(
+        tf.opacity, value, [](const transfer::OpacityPoint& p) { return p.value; },
+        [](const auto& p) { return double{p.alpha}; });
+  }
+  return c;
+}
+
+double gradientOpacity(const transfer::TransferFunction& tf, double magnitudePerMm) {
+  if (tf.gradientOpacity.empty()) return 1.0;
+  if (std::isnan(magnitudePerMm)) return 0.0;
+  return interpolatePoints(
+      tf.gradientOpacity, magnitudePerMm,
+      [](const transfer::GradientOpacityPoint& p) { return p.magnitude; },
+      [](const auto& p) { return double{p.alpha}; });
+}
+
+double correctOpacity(double alpha, double ratio) {
+  if (!(alpha > 0)) return 0.0;
+  if (alpha >= 1.0) return 1.0;
+  return -std::expm1(ratio * std::log1p(-alpha));
+}
+
+Chord clipToDomain(const Vec3& o, const Vec3& d, const std::array<int64_t, 3>& dims,
+                   double tMin) {
+  Chord c{tMin, kInf};
+  for (int axis = 0; axis < 3; ++axis) {
+    const double lo = -0.5, hi = static_cast<double>(dims[static_cast<std::size_t>(axis)]) - 0.5;
+    const double origin = o[axis], direction = d[axis];
+    if (direction == 0.0) {
+      // Parallel to this slab: inside (faces included) for every t, or nowhere.
+      if (origin < lo || origin > hi) return {0, -1};
+      continue;
+    }
+    // Divisions, not a reciprocal: a tiny component gives huge finite or infinite t, never NaN.
+    double t0 = (lo - origin) / direction, t1 = (hi - origin) / direction;
+    if (t0 > t1) std::swap(t0, t1);
+    c.tNear = std::max(c.tNear, t0);
+    c.tFar = std::min(c.tFar, t1);
+    if (c.empty()) return {0, -1};
+  }
+  return c;
+}
+
+RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::TransferFunction& tf,
+                                       const RenderOptions& options) const {
+  camera.validate();
+  checkOptions(options, tf);
+  Frame f;
+  f.volume = &volume_;
+  f.tf = &tf;
+  f.options = options;
+  f.indexFromPatient = volume_.patientFromIndex().inverseAffine();
+  const Mat4& m = volume_.patientFromIndex();
+  const double smallestSpacing = std::min(
+      {length(m.column(0)), length(m.column(1)), length(m.column(2))});
+  f.stepMm = options.stepMm > 0 ? options.stepMm : 0.25 * smallestSpacing;
+  f.shade = options.shading == RenderOptions::Shading::On ||
+            (options.shading == RenderOptions::Shading::FromTransferFunction && tf.material.shade);
+  f.useGradientOpacity = options.gradientOpacity && !tf.gradientOpacity.empty();
+  f.needGradient = f.shade || f.useGradientOpacity || options.boundary.enabled;
+
+  RenderResult result;
+  result.image = Image(camera.width, camera.height);
+  if (options.mode == RenderMode::Mip) {
+    result.value.assign(result.image.pixelCount(), kNaN);
+  }
+  result.stats.stepMm = f.stepMm;
+  std::atomic<int64_t> samples{0}, raysHit{0};
+  tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+    int64_t rowSamples = 0, rowHits = 0;
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const Ray ray = camera.ray(x, y);
+        const Vec3 o = f.indexFromPatient.transformPoint(ray.origin);
+        const Vec3 d = f.indexFromPatient.transformVector(ray.direction);
+        const Chord chord = clipToDomain(o, d, volume_.dims(), 0.0);
+        if (chord.empty()) continue;
+        ++rowHits;
+        RayResult r;
+        switch (options.mode) {
+          case RenderMode::Dvr: r = marchDvr(f, o, d, ray.direction, chord); break;
+          case RenderMode::Iso: r = marchIso(f, o, d, ray.direction, chord); break;
+          case RenderMode::Mip: r = marchMip(f, o, d, chord); break;
+        }
+        rowSamples += r.samples;
+        float* p = result.image.pixel(x, y);
+        p[0] = static_cast<float>(r.r);
+        p[1] = static_cast<float>(r.g);
+        p[2] = static_cast<float>(r.b);
+        p[3] = static_cast<float>(r.a);
+        result.image.depth[result.image.index(x, y)] = static_cast<float>(r.depth);
+        if (!result.value.empty()) result.value[result.image.index(x, y)] = r.value;
+      }
+    }
+    samples += rowSamples;
+    raysHit += rowHits;
+  });
+  result.stats.samples = samples.load();
+  result.stats.raysHit = raysHit.load();
+  return result;
+}
+
+}  // namespace octoray::gpu::reference
