@@ -61,6 +61,7 @@ Image readPng(const std::filesystem::path& path) {
   Image image(m.cols, m.rows);
   image.depth.clear();
   const int channels = m.channels();
+  image.hasAlpha = channels == 2 || channels == 4;
   for (int y = 0; y < m.rows; ++y) {
     for (int x = 0; x < m.cols; ++x) {
       std::array<double, 4> stored{0, 0, 0, 1 / scale};

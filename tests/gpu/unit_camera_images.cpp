@@ -133,6 +133,7 @@ TEST(ImageIo, PngRoundTripWithinOneLevel) {
   for (std::size_t i = 0; i < image.rgba.size(); ++i) {
     if (i % 4 == 3) {
       EXPECT_EQ(back.rgba[i], 1.0f);  // written as colour over black, no alpha
+      EXPECT_FALSE(back.hasAlpha);
     } else {
       EXPECT_NEAR(back.rgba[i], image.rgba[i], 0.5 / 255 + 1e-6);
     }
@@ -158,8 +159,16 @@ TEST(ImageMetrics, CompareCountsAndMeasures) {
   EXPECT_EQ(m.nonFiniteA, 0);
   EXPECT_EQ(m.nonFiniteB, 1);
   EXPECT_NEAR(m.maxAbsError, 0.5, 1e-6);
-  EXPECT_NEAR(m.rmse, std::sqrt(0.25 / ((32.0 * 24 - 1) * 4)), 1e-6);
+  EXPECT_NEAR(m.rmse, std::sqrt(0.25 / ((32.0 * 24 - 1) * 3)), 1e-6);
   EXPECT_LT(m.ssim, 1.0);
+  EXPECT_TRUE(m.alphaCompared);
+  EXPECT_EQ(m.maxAlphaError, 0.0);
+  b = a;
+  b.pixel(1, 1)[3] = 0.0f;
+  EXPECT_EQ(compare(a, b).maxAbsError, 0.0);
+  EXPECT_NEAR(compare(a, b).maxAlphaError, 0.75, 1e-7);
+  b.hasAlpha = false;  // e.g. read from our PNG: alpha is not compared
+  EXPECT_FALSE(compare(a, b).alphaCompared);
   EXPECT_THROW(compare(a, gradientImage(8, 8)), Error);
 }
 

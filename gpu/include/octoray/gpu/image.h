@@ -14,6 +14,7 @@ struct Image {
   int height = 0;
   std::vector<float> rgba;   // 4 per pixel, premultiplied
   std::vector<float> depth;  // 1 per pixel, mm along the ray; +inf: nothing; may be empty
+  bool hasAlpha = true;      // false for images read from files without alpha (alpha = 1)
 
   Image() = default;
   Image(int w, int h)
