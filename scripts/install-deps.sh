@@ -9,7 +9,7 @@ packages=(
   # fuzzing (scripts/test.sh): clang with libFuzzer and its sanitizer runtimes
   clang libclang-rt-14-dev
   # libraries
-  libgdcm-dev libvtk9-dev libopencv-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
+  libgdcm-dev libvtk9-dev libopencv-dev libopenexr-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
   nlohmann-json3-dev libcli11-dev libfmt-dev libexpat1-dev
   # tests: GoogleTest, and independent references for DICOM decoding and conversion
   libgtest-dev libgmock-dev libgdcm-tools dcm2niix python3 python3-pydicom python3-numpy python3-pil

@@ -318,7 +318,7 @@ double gradientOpacity(const transfer::TransferFunction& tf, double magnitudePer
 }
 
 double correctOpacity(double alpha, double ratio) {
-  if (!(alpha > 0)) return 0.0;
+  if (!(alpha > 0) || !(ratio > 0)) return 0.0;  // no material, or no path through it
   if (alpha >= 1.0) return 1.0;
   return -std::expm1(ratio * std::log1p(-alpha));
 }

@@ -78,6 +78,7 @@ TEST_F(ConstantBox, GrazingFaceEdgeAndCorner) {
   // Through the corner (-0.5, -0.5, -0.5) only, from outside: a zero-length chord.
   const Pixel corner = renderRay(volume, tf, oracle(), {-1.5, -1.5, 0.5}, {1, 1, -1});
   EXPECT_EQ(corner.a, 0.0);
+  EXPECT_EQ(renderRay(volume, constantTf(1), oracle(), {-1.5, -1.5, 0.5}, {1, 1, -1}).a, 0.0);
   // Diagonal through two opposite corners: the full diagonal.
   const Vec3 d = normalize({1, 1, 1});
   expectConstantMedium(renderRay(volume, tf, oracle(), Vec3{-0.5, -0.5, -0.5} - 5.0 * d, d),
@@ -283,6 +284,30 @@ TEST(ReferenceDvr, OneVoxelThickVolume) {
   const Vec3 d = normalize({1, 0, 1});
   const Vec3 origin = Vec3{3, 3, 0} - 10.0 * d;
   expectConstantMedium(renderRay(volume, tf, oracle(), origin, d), domainChord(volume, origin, d), a);
+}
+
+// A ramp of 20 HU/mm along x (value 10 i, spacing 0.5): rays along y inside see a constant
+// gradient magnitude of 20, so gradient opacity and boundary enhancement scale alpha exactly.
+TEST(ReferenceDvr, GradientOpacityAndBoundaryEnhancement) {
+  const auto volume = makeVolume({12, 8, 8}, scaling(0.5, 1, 1), [](int64_t i, auto...) {
+    return 10.0 * static_cast<double>(i);
+  });
+  auto tf = constantTf(0.1f);
+  const double a = static_cast<double>(0.1f);
+  const Vec3 origin{2.5, -5, 3}, d{0, 1, 0};  // x = 2.5 mm: index 5, differences inside
+  tf.gradientOpacity = {{0, 0.0f}, {40, 1.0f}};
+  expectConstantMedium(renderRay(volume, tf, oracle(), origin, d), 8.0, a * 0.5);
+  RenderOptions noGradientOpacity = oracle();
+  noGradientOpacity.gradientOpacity = false;
+  expectConstantMedium(renderRay(volume, tf, noGradientOpacity, origin, d), 8.0, a);
+  tf.gradientOpacity.clear();
+  RenderOptions boundary = oracle();
+  boundary.boundary = {true, 0.2, 0.01, 1.5};
+  const double k = 0.2 + 0.01 * std::pow(20.0, 1.5);
+  expectConstantMedium(renderRay(volume, tf, boundary, origin, d), 8.0, a * k);
+  // In a constant region the gradient is zero: enhancement leaves kC, never NaN.
+  const auto flat = makeVolume({6, 6, 6}, scaling(1, 1, 1), [](auto...) { return 1.0; });
+  expectConstantMedium(renderRay(flat, tf, boundary, {2, -5, 2}, d), 6.0, a * 0.2);
 }
 
 // Constant regions have a zero gradient: shading must give ambient only, never NaN.

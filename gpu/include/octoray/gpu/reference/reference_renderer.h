@@ -114,7 +114,8 @@ struct Classification {
 };
 Classification classify(const transfer::TransferFunction& tf, double value);
 double gradientOpacity(const transfer::TransferFunction& tf, double magnitudePerMm);
-// 1 - (1 - alpha)^ratio, exact at 0 and 1, accurate for alpha -> 0.
+// 1 - (1 - alpha)^ratio, exact at 0 and 1, accurate for alpha -> 0; 0 for ratio <= 0 (a
+// path of zero length, e.g. a ray touching only a corner, absorbs nothing even at alpha 1).
 double correctOpacity(double alpha, double ratio);
 
 }  // namespace octoray::gpu::reference
