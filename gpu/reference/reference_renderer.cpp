@@ -357,6 +357,12 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
   const double smallestSpacing = std::min(
       {length(m.column(0)), length(m.column(1)), length(m.column(2))});
   f.stepMm = options.stepMm > 0 ? options.stepMm : 0.25 * smallestSpacing;
+  // The longest chord is the domain's diagonal; bound the steps per ray so counts stay exact.
+  const double diagonalMm = 2.0 * VolumeDomain{volume_.dims(), m}.boundingRadiusMm();
+  if (diagonalMm / f.stepMm > 1e9) {
+    throw Error("", fmt::format("step {} mm is too small: over 1e9 steps across the volume",
+                                f.stepMm));
+  }
   f.shade = options.shading == RenderOptions::Shading::On ||
             (options.shading == RenderOptions::Shading::FromTransferFunction && tf.material.shade);
   f.useGradientOpacity = options.gradientOpacity && !tf.gradientOpacity.empty();
