@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <CLI/CLI.hpp>
 
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/reference/reference_renderer.h"
@@ -68,8 +68,10 @@ int main(int argc, char** argv) {
     limit.emplace(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(threads));
   }
   const transfer::TransferFunction tf = transfer::findPreset(preset);
-  const std::vector<Case> cases{{"dvr", RenderMode::Dvr, true},  {"dvr", RenderMode::Dvr, false},
-                                {"iso", RenderMode::Iso, true},  {"iso", RenderMode::Iso, false},
+  const std::vector<Case> cases{{"dvr", RenderMode::Dvr, true},
+                                {"dvr", RenderMode::Dvr, false},
+                                {"iso", RenderMode::Iso, true},
+                                {"iso", RenderMode::Iso, false},
                                 {"mip", RenderMode::Mip, false}};
   fmt::print("{:>7} {:>7} {:>4} {:>7} {:>7} {:>11} {:>9} {:>10}\n", "volume", "image", "mode",
              "shading", "frames", "median ms", "Msamples", "Msamples/s");

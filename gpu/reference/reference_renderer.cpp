@@ -285,7 +285,8 @@ void checkOptions(const RenderOptions& o, const transfer::TransferFunction& tf) 
     throw Error("", "boundary enhancement: kC, kS must be finite and kE finite and >= 0");
   }
   if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
-    throw Error("", fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
+    throw Error("",
+                fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
   }
 }
 
@@ -323,8 +324,7 @@ double correctOpacity(double alpha, double ratio) {
   return -std::expm1(ratio * std::log1p(-alpha));
 }
 
-Chord clipToDomain(const Vec3& o, const Vec3& d, const std::array<int64_t, 3>& dims,
-                   double tMin) {
+Chord clipToDomain(const Vec3& o, const Vec3& d, const std::array<int64_t, 3>& dims, double tMin) {
   Chord c{tMin, kInf};
   for (int axis = 0; axis < 3; ++axis) {
     const double lo = -0.5, hi = static_cast<double>(dims[static_cast<std::size_t>(axis)]) - 0.5;
@@ -354,14 +354,14 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
   f.options = options;
   f.indexFromPatient = volume_.patientFromIndex().inverseAffine();
   const Mat4& m = volume_.patientFromIndex();
-  const double smallestSpacing = std::min(
-      {length(m.column(0)), length(m.column(1)), length(m.column(2))});
+  const double smallestSpacing =
+      std::min({length(m.column(0)), length(m.column(1)), length(m.column(2))});
   f.stepMm = options.stepMm > 0 ? options.stepMm : 0.25 * smallestSpacing;
   // The longest chord is the domain's diagonal; bound the steps per ray so counts stay exact.
   const double diagonalMm = 2.0 * VolumeDomain{volume_.dims(), m}.boundingRadiusMm();
   if (diagonalMm / f.stepMm > 1e9) {
-    throw Error("", fmt::format("step {} mm is too small: over 1e9 steps across the volume",
-                                f.stepMm));
+    throw Error("",
+                fmt::format("step {} mm is too small: over 1e9 steps across the volume", f.stepMm));
   }
   f.shade = options.shading == RenderOptions::Shading::On ||
             (options.shading == RenderOptions::Shading::FromTransferFunction && tf.material.shade);
@@ -375,35 +375,42 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
   }
   result.stats.stepMm = f.stepMm;
   std::atomic<int64_t> samples{0}, raysHit{0};
-  tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
-    int64_t rowSamples = 0, rowHits = 0;
-    for (int y = rows.begin(); y < rows.end(); ++y) {
-      for (int x = 0; x < camera.width; ++x) {
-        const Ray ray = camera.ray(x, y);
-        const Vec3 o = f.indexFromPatient.transformPoint(ray.origin);
-        const Vec3 d = f.indexFromPatient.transformVector(ray.direction);
-        const Chord chord = clipToDomain(o, d, volume_.dims(), 0.0);
-        if (chord.empty()) continue;
-        ++rowHits;
-        RayResult r;
-        switch (options.mode) {
-          case RenderMode::Dvr: r = marchDvr(f, o, d, ray.direction, chord); break;
-          case RenderMode::Iso: r = marchIso(f, o, d, ray.direction, chord); break;
-          case RenderMode::Mip: r = marchMip(f, o, d, chord); break;
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+        int64_t rowSamples = 0, rowHits = 0;
+        for (int y = rows.begin(); y < rows.end(); ++y) {
+          for (int x = 0; x < camera.width; ++x) {
+            const Ray ray = camera.ray(x, y);
+            const Vec3 o = f.indexFromPatient.transformPoint(ray.origin);
+            const Vec3 d = f.indexFromPatient.transformVector(ray.direction);
+            const Chord chord = clipToDomain(o, d, volume_.dims(), 0.0);
+            if (chord.empty()) continue;
+            ++rowHits;
+            RayResult r;
+            switch (options.mode) {
+              case RenderMode::Dvr:
+                r = marchDvr(f, o, d, ray.direction, chord);
+                break;
+              case RenderMode::Iso:
+                r = marchIso(f, o, d, ray.direction, chord);
+                break;
+              case RenderMode::Mip:
+                r = marchMip(f, o, d, chord);
+                break;
+            }
+            rowSamples += r.samples;
+            float* p = result.image.pixel(x, y);
+            p[0] = static_cast<float>(r.r);
+            p[1] = static_cast<float>(r.g);
+            p[2] = static_cast<float>(r.b);
+            p[3] = static_cast<float>(r.a);
+            result.image.depth[result.image.index(x, y)] = static_cast<float>(r.depth);
+            if (!result.value.empty()) result.value[result.image.index(x, y)] = r.value;
+          }
         }
-        rowSamples += r.samples;
-        float* p = result.image.pixel(x, y);
-        p[0] = static_cast<float>(r.r);
-        p[1] = static_cast<float>(r.g);
-        p[2] = static_cast<float>(r.b);
-        p[3] = static_cast<float>(r.a);
-        result.image.depth[result.image.index(x, y)] = static_cast<float>(r.depth);
-        if (!result.value.empty()) result.value[result.image.index(x, y)] = r.value;
-      }
-    }
-    samples += rowSamples;
-    raysHit += rowHits;
-  });
+        samples += rowSamples;
+        raysHit += rowHits;
+      });
   result.stats.samples = samples.load();
   result.stats.raysHit = raysHit.load();
   return result;

@@ -17,11 +17,13 @@ namespace {
 // Sample count of `dims`, or an error when it cannot be held in memory as float.
 std::size_t checkedSampleCount(const std::array<int64_t, 3>& dims, const std::string& path) {
   for (int64_t d : dims) {
-    if (d < 1) throw Error(path, fmt::format("volume dims {}x{}x{} are empty", dims[0], dims[1], dims[2]));
+    if (d < 1)
+      throw Error(path, fmt::format("volume dims {}x{}x{} are empty", dims[0], dims[1], dims[2]));
   }
-  const double samples = static_cast<double>(dims[0]) * static_cast<double>(dims[1]) *
-                         static_cast<double>(dims[2]);
-  if (samples * sizeof(float) > static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 2)) {
+  const double samples =
+      static_cast<double>(dims[0]) * static_cast<double>(dims[1]) * static_cast<double>(dims[2]);
+  if (samples * sizeof(float) >
+      static_cast<double>(std::numeric_limits<std::ptrdiff_t>::max() / 2)) {
     throw Error(path, fmt::format("volume {}x{}x{} is too large to hold in memory", dims[0],
                                   dims[1], dims[2]));
   }
@@ -48,9 +50,9 @@ ReferenceVolume ReferenceVolume::fromSource(VolumeSource& source) {
   const int64_t slabSlices = std::max<int64_t>(1, (int64_t{4} << 20) / slice);
   for (int64_t first = 0; first < info.dims[2]; first += slabSlices) {
     const int64_t count = std::min(slabSlices, info.dims[2] - first);
-    source.readSlab(first, count,
-                    std::span<float>(values.data() + first * slice,
-                                     static_cast<std::size_t>(count * slice)));
+    source.readSlab(
+        first, count,
+        std::span<float>(values.data() + first * slice, static_cast<std::size_t>(count * slice)));
   }
   return ReferenceVolume(info.dims, info.patientFromIndex, std::move(values));
 }
@@ -77,7 +79,8 @@ ReferenceVolume ReferenceVolume::fromStore(const volume::StoreReader& store) {
     for (int64_t z = 0; z < extent[2]; ++z) {
       for (int64_t y = 0; y < extent[1]; ++y) {
         const int64_t stored = a + edge * ((y + a) + edge * (z + a));
-        float* out = values.data() + origin[0] + dims[0] * ((origin[1] + y) + dims[1] * (origin[2] + z));
+        float* out =
+            values.data() + origin[0] + dims[0] * ((origin[1] + y) + dims[1] * (origin[2] + z));
         for (int64_t x = 0; x < extent[0]; ++x) {
           const std::size_t s = static_cast<std::size_t>(stored + x);
           out[x] = brick.format == volume::SampleFormat::UInt16

@@ -51,7 +51,8 @@ T numberFromJson(const nlohmann::json& j, const char* field, const std::string& 
       throw Error(path, fmt::format("camera: \"{}\" must be an integer", field));
     }
     const int64_t v = it->get<int64_t>();
-    if (v < 1 || v > 65536) throw Error(path, fmt::format("camera: \"{}\" must be in [1, 65536]", field));
+    if (v < 1 || v > 65536)
+      throw Error(path, fmt::format("camera: \"{}\" must be in [1, 65536]", field));
     return static_cast<T>(v);
   } else {
     return it->get<T>();

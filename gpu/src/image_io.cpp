@@ -1,11 +1,11 @@
 #include "octoray/gpu/image_io.h"
 
-#include <fmt/format.h>
 #include <ImfChannelList.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
+#include <fmt/format.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -66,9 +66,9 @@ Image readPng(const std::filesystem::path& path) {
     for (int x = 0; x < m.cols; ++x) {
       std::array<double, 4> stored{0, 0, 0, 1 / scale};
       for (int c = 0; c < channels; ++c) {
-        stored[static_cast<std::size_t>(c)] =
-            m.depth() == CV_8U ? m.ptr<uint8_t>(y)[x * channels + c]
-                               : m.ptr<uint16_t>(y)[x * channels + c];
+        stored[static_cast<std::size_t>(c)] = m.depth() == CV_8U
+                                                  ? m.ptr<uint8_t>(y)[x * channels + c]
+                                                  : m.ptr<uint16_t>(y)[x * channels + c];
       }
       float* p = image.pixel(x, y);
       if (channels <= 2) {  // grey (+ alpha)
@@ -97,14 +97,14 @@ Image readExr(const std::filesystem::path& path) {
   Image image(static_cast<int>(w), static_cast<int>(h));
   const bool hasDepth = file.header().channels().findChannel("Z") != nullptr;
   // OpenEXR addresses pixels by absolute coordinates: shift the base to the data window.
-  const std::ptrdiff_t shift = -(static_cast<std::ptrdiff_t>(window.min.x) +
-                                 static_cast<std::ptrdiff_t>(window.min.y) * w);
+  const std::ptrdiff_t shift =
+      -(static_cast<std::ptrdiff_t>(window.min.x) + static_cast<std::ptrdiff_t>(window.min.y) * w);
   Imf::FrameBuffer frame;
   const std::array<const char*, 4> names{"R", "G", "B", "A"};
   for (std::size_t c = 0; c < 4; ++c) {
     char* base = reinterpret_cast<char*>(image.rgba.data() + c) + shift * 4 * sizeof(float);
-    frame.insert(names[c], Imf::Slice(Imf::FLOAT, base, 4 * sizeof(float), 4 * sizeof(float) * w,
-                                      1, 1, c == 3 ? 1.0 : 0.0));
+    frame.insert(names[c], Imf::Slice(Imf::FLOAT, base, 4 * sizeof(float), 4 * sizeof(float) * w, 1,
+                                      1, c == 3 ? 1.0 : 0.0));
   }
   if (hasDepth) {
     char* base = reinterpret_cast<char*>(image.depth.data()) + shift * sizeof(float);
@@ -136,7 +136,8 @@ void writePng(const Image& image, const std::filesystem::path& path, PngEncoding
   const std::filesystem::path temporary = temporaryName(path);
   {
     std::ofstream out(temporary, std::ios::binary);
-    out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
     if (!out) throw Error(path.string(), "cannot write the PNG file");
   }
   replaceWith(temporary, path);
@@ -152,10 +153,11 @@ void writeExr(const Image& image, const std::filesystem::path& path) {
     const std::array<const char*, 4> names{"R", "G", "B", "A"};
     for (std::size_t c = 0; c < 4; ++c) {
       header.channels().insert(names[c], Imf::Channel(Imf::FLOAT));
-      frame.insert(names[c],
-                   Imf::Slice(Imf::FLOAT, const_cast<char*>(reinterpret_cast<const char*>(
-                                              image.rgba.data() + c)),
-                              4 * sizeof(float), 4 * sizeof(float) * image.width));
+      frame.insert(
+          names[c],
+          Imf::Slice(Imf::FLOAT,
+                     const_cast<char*>(reinterpret_cast<const char*>(image.rgba.data() + c)),
+                     4 * sizeof(float), 4 * sizeof(float) * image.width));
     }
     std::vector<float> depth = image.depth;
     if (depth.empty()) depth.assign(image.pixelCount(), std::numeric_limits<float>::infinity());

@@ -70,8 +70,8 @@ ImageMetrics compare(const Image& a, const Image& b) {
   }
   m.rmse = channels > 0 ? std::sqrt(sumSquares / static_cast<double>(channels)) : 0.0;
   m.psnrDb = m.rmse > 0 ? 20.0 * std::log10(1.0 / m.rmse) : std::numeric_limits<double>::infinity();
-  const cv::Scalar ssim = cv::quality::QualitySSIM::compute(ssimInput(a, valid), ssimInput(b, valid),
-                                                            cv::noArray());
+  const cv::Scalar ssim =
+      cv::quality::QualitySSIM::compute(ssimInput(a, valid), ssimInput(b, valid), cv::noArray());
   m.ssim = (ssim[0] + ssim[1] + ssim[2]) / 3.0;
   return m;
 }

@@ -3,8 +3,8 @@
 // images over black), and the largest alpha difference when both files carry alpha.
 //   octoray-compare A B [--json]
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
 #include <cmath>
@@ -17,8 +17,9 @@
 #include "octoray/gpu/image_metrics.h"
 
 int main(int argc, char** argv) {
-  CLI::App app{"Compares two images (PNG or OpenEXR) as seen over black: RMSE, PSNR, SSIM, max error, "
-              "NaN/inf pixels; alpha separately when both have it."};
+  CLI::App app{
+      "Compares two images (PNG or OpenEXR) as seen over black: RMSE, PSNR, SSIM, max error, "
+      "NaN/inf pixels; alpha separately when both have it."};
   std::string pathA, pathB;
   bool json = false;
   app.add_option("a", pathA, "first image")->required();
@@ -43,23 +44,30 @@ int main(int argc, char** argv) {
       throw octoray::Error(pathB, e.reason() + " (against " + pathA + ")");
     }
     // JSON has no infinity: identical images report "psnrDb": null.
-    const nlohmann::json psnr = std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json();
+    const nlohmann::json psnr =
+        std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json();
     if (json) {
-      std::cout << nlohmann::json{{"a", pathA},           {"b", pathB},
-                                  {"width", a.width},     {"height", a.height},
-                                  {"rmse", m.rmse},       {"psnrDb", psnr},
-                                  {"ssim", m.ssim},       {"maxAbsError", m.maxAbsError},
-                                  {"nonFiniteA", m.nonFiniteA}, {"nonFiniteB", m.nonFiniteB},
-                                  {"maxAlphaError", m.alphaCompared ? nlohmann::json(m.maxAlphaError)
-                                                                    : nlohmann::json()}}
+      std::cout << nlohmann::json{{"a", pathA},
+                                  {"b", pathB},
+                                  {"width", a.width},
+                                  {"height", a.height},
+                                  {"rmse", m.rmse},
+                                  {"psnrDb", psnr},
+                                  {"ssim", m.ssim},
+                                  {"maxAbsError", m.maxAbsError},
+                                  {"nonFiniteA", m.nonFiniteA},
+                                  {"nonFiniteB", m.nonFiniteB},
+                                  {"maxAlphaError", m.alphaCompared
+                                                        ? nlohmann::json(m.maxAlphaError)
+                                                        : nlohmann::json()}}
                        .dump(2)
                 << '\n';
     } else {
-      fmt::print("{}x{}  RMSE {:.6g}  PSNR {:.2f} dB  SSIM {:.6f}  max error {:.6g}  "
-                 "NaN/inf pixels {} / {}{}\n",
-                 a.width, a.height, m.rmse, m.psnrDb, m.ssim, m.maxAbsError, m.nonFiniteA,
-                 m.nonFiniteB,
-                 m.alphaCompared ? fmt::format("  max alpha error {:.6g}", m.maxAlphaError) : "");
+      fmt::print(
+          "{}x{}  RMSE {:.6g}  PSNR {:.2f} dB  SSIM {:.6f}  max error {:.6g}  "
+          "NaN/inf pixels {} / {}{}\n",
+          a.width, a.height, m.rmse, m.psnrDb, m.ssim, m.maxAbsError, m.nonFiniteA, m.nonFiniteB,
+          m.alphaCompared ? fmt::format("  max alpha error {:.6g}", m.maxAlphaError) : "");
     }
     return 0;
   });

@@ -6,10 +6,10 @@
 //     --preset NAME | --tf FILE [--tf-name NAME]  [--iso HU]  --size WxH
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
-#include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <array>
 #include <chrono>
@@ -45,7 +45,8 @@ struct Arguments {
 };
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
 }
 
 // "512x384": two positive integers.
@@ -63,7 +64,8 @@ bool isStore(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   char magic[sizeof(volume::kStoreMagic)] = {};
   in.read(magic, sizeof(magic));
-  return in.gcount() == sizeof(magic) && std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
+  return in.gcount() == sizeof(magic) &&
+         std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
 }
 
 gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
@@ -165,7 +167,8 @@ int run(const Arguments& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"Renders a CT volume with the CPU reference renderer (the GPU renderer joins later)."};
+  CLI::App app{
+      "Renders a CT volume with the CPU reference renderer (the GPU renderer joins later)."};
   Arguments a;
   app.add_option("path", a.path, "octree store, DICOM folder or volume file")->required();
   app.add_option("-o,--output", a.output, "PNG to write (colour over black, 8-bit)")->required();
@@ -174,12 +177,15 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"dvr", "iso", "mip"}))
       ->capture_default_str();
   auto* preset = app.add_option("--preset", a.preset, "shipped preset by name (bone, lung, ...)");
-  auto* tfFile = app.add_option("--tf", a.tfPath, "transfer function file (octoray JSON, Slicer, ParaView)");
+  auto* tfFile =
+      app.add_option("--tf", a.tfPath, "transfer function file (octoray JSON, Slicer, ParaView)");
   preset->excludes(tfFile);
-  app.add_option("--tf-name", a.tfName, "which function of a --tf file holding several")->needs(tfFile);
+  app.add_option("--tf-name", a.tfName, "which function of a --tf file holding several")
+      ->needs(tfFile);
   app.add_option("--iso", a.iso, "isovalue (HU) for --mode iso");
   auto* size = app.add_option("--size", a.size, "image WxH")->capture_default_str();
-  app.add_option("--azimuth", a.azimuth, "degrees; 0 = from anterior, 90 = from the patient's left");
+  app.add_option("--azimuth", a.azimuth,
+                 "degrees; 0 = from anterior, 90 = from the patient's left");
   app.add_option("--elevation", a.elevation, "degrees; positive = from superior");
   app.add_option("--zoom", a.zoom, "1 frames the volume's bounding sphere")->capture_default_str();
   app.add_option("--projection", a.projection, "perspective or orthographic")
@@ -190,15 +196,18 @@ int main(int argc, char** argv) {
   app.add_option("--camera", a.camera, "camera JSON (eye, target, up, ...) instead of the orbit");
   app.add_option("--save-camera", a.saveCamera, "write the camera used as JSON");
   app.add_option("--step", a.stepMm, "step in mm (default 0.25 x the smallest spacing)");
-  app.add_option("--early-termination", a.earlyTermination, "opacity at which a ray stops; 1 = never")
+  app.add_option("--early-termination", a.earlyTermination,
+                 "opacity at which a ray stops; 1 = never")
       ->capture_default_str();
   app.add_option("--shading", a.shading, "auto (the preset's material), on or off")
       ->check(CLI::IsMember({"auto", "on", "off"}))
       ->capture_default_str();
   app.add_flag("--no-gradient-opacity", a.noGradientOpacity, "ignore the TF's gradient opacity");
-  app.add_flag("--srgb", a.srgb, "sRGB-encode the PNG (default: clamp, as VTK and Slicer show TF colours)");
+  app.add_flag("--srgb", a.srgb,
+               "sRGB-encode the PNG (default: clamp, as VTK and Slicer show TF colours)");
   app.add_flag("--reference", a.reference, "use the CPU reference renderer (today the only one)");
-  app.add_option("--threads", a.threads, "worker threads (0: all cores)")->check(CLI::NonNegativeNumber);
+  app.add_option("--threads", a.threads, "worker threads (0: all cores)")
+      ->check(CLI::NonNegativeNumber);
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
   try {
     app.parse(argc, argv);

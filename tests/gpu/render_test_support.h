@@ -69,7 +69,11 @@ inline Pixel renderRay(const ReferenceVolume& volume, const transfer::TransferFu
   const gpu::reference::ReferenceRenderer renderer(volume);
   const auto result = renderer.render(rayCamera(origin, direction), tf, options);
   const float* p = result.image.pixel(0, 0);
-  Pixel px{p[0], p[1], p[2], p[3], result.image.depth[0],
+  Pixel px{p[0],
+           p[1],
+           p[2],
+           p[3],
+           result.image.depth[0],
            result.value.empty() ? std::numeric_limits<double>::quiet_NaN() : result.value[0]};
   EXPECT_TRUE(std::isfinite(px.r) && std::isfinite(px.g) && std::isfinite(px.b) &&
               std::isfinite(px.a))
@@ -106,10 +110,9 @@ inline double domainChord(const ReferenceVolume& v, Vec3 origin, Vec3 direction,
   const Mat4& m = v.patientFromIndex();
   const auto& d = v.dims();
   const Vec3 corner = m.transformPoint({-0.5, -0.5, -0.5});
-  return chordThroughParallelepiped(corner, static_cast<double>(d[0]) * m.column(0),
-                                    static_cast<double>(d[1]) * m.column(1),
-                                    static_cast<double>(d[2]) * m.column(2), origin,
-                                    normalize(direction), tMin);
+  return chordThroughParallelepiped(
+      corner, static_cast<double>(d[0]) * m.column(0), static_cast<double>(d[1]) * m.column(1),
+      static_cast<double>(d[2]) * m.column(2), origin, normalize(direction), tMin);
 }
 
 // Integral over [0, length] of ln(w(t)) for w linear from w0 to w1 (both > 0).

@@ -24,7 +24,9 @@ void expectVec(Vec3 a, Vec3 b, double tolerance = 1e-9) {
   EXPECT_NEAR(a.z, b.z, tolerance);
 }
 
-VolumeDomain cube() { return {{11, 11, 11}, Mat4::fromColumns({1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-5, -5, -5})}; }
+VolumeDomain cube() {
+  return {{11, 11, 11}, Mat4::fromColumns({1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-5, -5, -5})};
+}
 
 TEST(Camera, OrbitConventions) {
   OrbitParameters orbit;

@@ -143,9 +143,8 @@ TEST(ReferenceDvr, TinyOpacityIsAccurate) {
 TEST(ReferenceDvr, LinearRampMatchesAnalyticIntegral) {
   const int64_t n = 16;
   const double spacing = 0.7;
-  const auto volume = makeVolume({n, 5, 5}, scaling(spacing, 1, 1), [](int64_t i, auto...) {
-    return static_cast<double>(i);
-  });
+  const auto volume = makeVolume({n, 5, 5}, scaling(spacing, 1, 1),
+                                 [](int64_t i, auto...) { return static_cast<double>(i); });
   transfer::TransferFunction tf = constantTf(0);
   const float amax = 0.3f;
   tf.opacity = {{0, 0.0f}, {static_cast<double>(n - 1), amax}};
@@ -163,9 +162,8 @@ TEST(ReferenceDvr, LinearRampMatchesAnalyticIntegral) {
 
 // Opacity jumping between neighbouring HU values: 0 HU for i < 4, 1 HU from i = 4.
 TEST(ReferenceDvr, StepTransferFunctions) {
-  const auto volume = makeVolume({8, 3, 3}, scaling(1, 1, 1), [](int64_t i, auto...) {
-    return i < 4 ? 0.0 : 1.0;
-  });
+  const auto volume =
+      makeVolume({8, 3, 3}, scaling(1, 1, 1), [](int64_t i, auto...) { return i < 4 ? 0.0 : 1.0; });
   // A ramp over one HU: alpha = 0.8 * clamp(x - 3, 0, 1) along x.
   transfer::TransferFunction ramp = constantTf(0);
   ramp.opacity = {{0, 0.0f}, {1, 0.8f}};
@@ -183,8 +181,8 @@ TEST(ReferenceDvr, StepTransferFunctions) {
   step.opacity = {{0.5, 0.0f}, {0.5, 0.8f}};
   RenderOptions aligned = oracle();
   aligned.stepMm = 0.25;  // sample boundaries fall on x = 3.5: exact
-  EXPECT_NEAR(renderRay(volume, step, aligned, {-3, 1, 1}, {1, 0, 0}).a,
-              1 - std::pow(1 - a, 4.0), 1e-6);
+  EXPECT_NEAR(renderRay(volume, step, aligned, {-3, 1, 1}, {1, 0, 0}).a, 1 - std::pow(1 - a, 4.0),
+              1e-6);
   RenderOptions odd = oracle();
   odd.stepMm = 0.3;  // not aligned: the step is found within half a sample step
   const double got = renderRay(volume, step, odd, {-3, 1, 1}, {1, 0, 0}).a;
@@ -198,9 +196,10 @@ TEST(ReferenceDvr, StepTransferFunctions) {
 TEST(ReferenceDvr, SphereChord) {
   const double radius = 9.0;
   const Vec3 centre{15.5, 15.5, 15.5};
-  const auto volume = makeVolume({32, 32, 32}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
-    return radius - length(Vec3{double(i), double(j), double(k)} - centre);
-  });
+  const auto volume =
+      makeVolume({32, 32, 32}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
+        return radius - length(Vec3{double(i), double(j), double(k)} - centre);
+      });
   transfer::TransferFunction tf = constantTf(0);
   tf.opacity = {{0, 0.0f}, {0, 0.1f}};
   const double a = static_cast<double>(0.1f);
@@ -218,8 +217,8 @@ TEST(ReferenceDvr, SphereChord) {
 
 // Spacing 0.3 x 0.3 x 5 mm: chords of a constant box in mm, through every axis.
 TEST(ReferenceDvr, AnisotropicSpacing) {
-  const auto volume = makeVolume({20, 20, 4}, scaling(0.3, 0.3, 5.0, {-3, -3, 0}),
-                                 [](auto...) { return 1.0; });
+  const auto volume =
+      makeVolume({20, 20, 4}, scaling(0.3, 0.3, 5.0, {-3, -3, 0}), [](auto...) { return 1.0; });
   const auto tf = constantTf(0.02f);
   const double a = static_cast<double>(0.02f);
   expectConstantMedium(renderRay(volume, tf, oracle(), {0, 0, -50}, {0, 0, 1}), 20.0, a);
@@ -283,15 +282,15 @@ TEST(ReferenceDvr, OneVoxelThickVolume) {
   expectConstantMedium(renderRay(volume, tf, oracle(), {-10, 3, 1}, {1, 0, 0}), 8.0, a);  // face
   const Vec3 d = normalize({1, 0, 1});
   const Vec3 origin = Vec3{3, 3, 0} - 10.0 * d;
-  expectConstantMedium(renderRay(volume, tf, oracle(), origin, d), domainChord(volume, origin, d), a);
+  expectConstantMedium(renderRay(volume, tf, oracle(), origin, d), domainChord(volume, origin, d),
+                       a);
 }
 
 // A ramp of 20 HU/mm along x (value 10 i, spacing 0.5): rays along y inside see a constant
 // gradient magnitude of 20, so gradient opacity and boundary enhancement scale alpha exactly.
 TEST(ReferenceDvr, GradientOpacityAndBoundaryEnhancement) {
-  const auto volume = makeVolume({12, 8, 8}, scaling(0.5, 1, 1), [](int64_t i, auto...) {
-    return 10.0 * static_cast<double>(i);
-  });
+  const auto volume = makeVolume({12, 8, 8}, scaling(0.5, 1, 1),
+                                 [](int64_t i, auto...) { return 10.0 * static_cast<double>(i); });
   auto tf = constantTf(0.1f);
   const double a = static_cast<double>(0.1f);
   const Vec3 origin{2.5, -5, 3}, d{0, 1, 0};  // x = 2.5 mm: index 5, differences inside
@@ -331,9 +330,10 @@ TEST(ReferenceDvr, ShadingOfConstantRegionIsAmbientOnly) {
 // and the same render twice is bit-identical.
 TEST(ReferenceDvr, ShadedSphereImage) {
   const Vec3 centre{15.5, 15.5, 15.5};
-  const auto volume = makeVolume({32, 32, 32}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
-    return 100.0 * (10.0 - length(Vec3{double(i), double(j), double(k)} - centre));
-  });
+  const auto volume =
+      makeVolume({32, 32, 32}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
+        return 100.0 * (10.0 - length(Vec3{double(i), double(j), double(k)} - centre));
+      });
   transfer::TransferFunction tf = constantTf(0, 0.9f, 0.8f, 0.7f);
   tf.opacity = {{-50, 0.0f}, {50, 1.0f}};
   tf.material = {true, 0.1f, 0.8f, 0.3f, 20.0f};

@@ -61,9 +61,8 @@ TEST(ReferenceIso, SphereDepthMatchesRadius) {
 
 TEST(ReferenceIso, RefinesToTheExactCrossing) {
   // A linear ramp along x is its own trilinear interpolant: the crossing is exact.
-  const auto volume = makeVolume({16, 4, 4}, scaling(0.5, 1, 1), [](int64_t i, auto...) {
-    return 10.0 * static_cast<double>(i);
-  });
+  const auto volume = makeVolume({16, 4, 4}, scaling(0.5, 1, 1),
+                                 [](int64_t i, auto...) { return 10.0 * static_cast<double>(i); });
   const Pixel px = renderRay(volume, constantTf(1), isoAt(37.3), {-20, 1.5, 1.5}, {1, 0, 0});
   EXPECT_NEAR(px.depth, 20.0 + 0.5 * 3.73, 1e-6 * 0.5);
   // Camera inside the surface: the first crossing on the way out is found too.
@@ -113,9 +112,10 @@ TEST(ReferenceMip, MaximumOfTheInterpolant) {
 
 TEST(ReferenceMip, SphereAndGrazingRays) {
   const Vec3 centre{12, 12, 12};
-  const auto volume = makeVolume({25, 25, 25}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
-    return 100.0 - length(Vec3{double(i), double(j), double(k)} - centre);
-  });
+  const auto volume =
+      makeVolume({25, 25, 25}, scaling(1, 1, 1), [&](int64_t i, int64_t j, int64_t k) {
+        return 100.0 - length(Vec3{double(i), double(j), double(k)} - centre);
+      });
   const auto tf = constantTf(1);
   // Through the centre (a voxel centre): the maximum is exactly 100.
   EXPECT_NEAR(renderRay(volume, tf, mip(), {12, 12, -5}, {0, 0, 1}).value, 100.0, 1e-9);
@@ -131,9 +131,10 @@ TEST(ReferenceMip, SphereAndGrazingRays) {
 }
 
 TEST(ReferenceMip, ImageIsFiniteAndDeterministic) {
-  const auto volume = makeVolume({16, 12, 3}, scaling(0.3, 0.3, 5), [](int64_t i, int64_t j, int64_t k) {
-    return static_cast<double>((i * 7 + j * 3 + k * 11) % 13);
-  });
+  const auto volume =
+      makeVolume({16, 12, 3}, scaling(0.3, 0.3, 5), [](int64_t i, int64_t j, int64_t k) {
+        return static_cast<double>((i * 7 + j * 3 + k * 11) % 13);
+      });
   transfer::TransferFunction tf = constantTf(0);
   tf.opacity = {{0, 0.0f}, {12, 1.0f}};
   gpu::OrbitParameters orbit;

@@ -1,6 +1,7 @@
 // The reference volume: loading from a VolumeSource and from an octree store's leaf bricks
 // gives the same samples; trilinear sampling with clamping at the domain's faces.
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include "memory_volume.h"
@@ -27,7 +28,7 @@ TEST(ReferenceVolume, SourceAndStoreAgree) {
   for (int brickSize : {16, 32}) {
     volume::BuildOptions options;
     options.brickSize = brickSize;
-    const std::string path = (dir / ("v" + std::to_string(brickSize) + ".octoray")).string();
+    const std::string path = (dir / fmt::format("v{}.octoray", brickSize)).string();
     volume::buildStore(source, path, options);
     const volume::StoreReader store(path);
     const ReferenceVolume fromStore = ReferenceVolume::fromStore(store);
@@ -35,7 +36,8 @@ TEST(ReferenceVolume, SourceAndStoreAgree) {
     EXPECT_EQ(fromStore.values(), fromSource.values());
     for (int r = 0; r < 4; ++r)
       for (int c = 0; c < 4; ++c)
-        EXPECT_DOUBLE_EQ(fromStore.patientFromIndex().m[r][c], source.info().patientFromIndex.m[r][c]);
+        EXPECT_DOUBLE_EQ(fromStore.patientFromIndex().m[r][c],
+                         source.info().patientFromIndex.m[r][c]);
   }
   for (int64_t k : {0, 7, 18}) EXPECT_EQ(fromSource.at(36, 20, k), valueAt(36, 20, k));
 }

@@ -37,10 +37,11 @@ class RenderTools : public ::testing::Test {
 
 TEST_F(RenderTools, StoreAndSourceRenderTheSameImage) {
   const std::string render = toolPath("octoray-render").string();
-  const std::vector<std::string> common{"--preset", "bone", "--size", "48x40", "--azimuth",
-                                        "30",       "--elevation", "10", "--json", "--reference"};
-  std::vector<std::string> a{render, store, "-o", (dir / "a.png").string(), "--exr",
-                             (dir / "a.exr").string()};
+  const std::vector<std::string> common{"--preset",  "bone",       "--size",      "48x40",
+                                        "--azimuth", "30",         "--elevation", "10",
+                                        "--json",    "--reference"};
+  std::vector<std::string> a{
+      render, store, "-o", (dir / "a.png").string(), "--exr", (dir / "a.exr").string()};
   a.insert(a.end(), common.begin(), common.end());
   const ProcessResult ra = runProcess(a);
   ASSERT_EQ(ra.exitCode, 0) << ra.err;
@@ -52,8 +53,8 @@ TEST_F(RenderTools, StoreAndSourceRenderTheSameImage) {
   EXPECT_GE(report["timingMs"]["render"].get<double>(), 0);
   EXPECT_TRUE(report["camera"].contains("eye"));
 
-  std::vector<std::string> b{render, nrrd, "-o", (dir / "b.png").string(), "--exr",
-                             (dir / "b.exr").string()};
+  std::vector<std::string> b{
+      render, nrrd, "-o", (dir / "b.png").string(), "--exr", (dir / "b.exr").string()};
   b.insert(b.end(), common.begin(), common.end());
   ASSERT_EQ(runProcess(b).exitCode, 0);
   const gpu::Image ia = gpu::readImage(dir / "a.exr");
@@ -63,9 +64,9 @@ TEST_F(RenderTools, StoreAndSourceRenderTheSameImage) {
   for (std::size_t i = 3; i < ia.rgba.size(); i += 4) alphaSum += ia.rgba[i];
   EXPECT_GT(alphaSum, 48 * 40 * 0.1f) << "the phantom's skull should cover part of the image";
 
-  const ProcessResult cmp = runProcess({toolPath("octoray-compare").string(),
-                                        (dir / "a.png").string(), (dir / "b.exr").string(),
-                                        "--json"});
+  const ProcessResult cmp =
+      runProcess({toolPath("octoray-compare").string(), (dir / "a.png").string(),
+                  (dir / "b.exr").string(), "--json"});
   ASSERT_EQ(cmp.exitCode, 0) << cmp.err;
   const auto metrics = nlohmann::json::parse(cmp.out);
   EXPECT_GT(metrics["psnrDb"].get<double>(), 40.0);
@@ -76,17 +77,17 @@ TEST_F(RenderTools, ModesAndErrors) {
   const std::string render = toolPath("octoray-render").string();
   const std::string out = (dir / "x.png").string();
   for (const char* mode : {"iso", "mip"}) {
-    const ProcessResult r = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode",
-                                        mode, "--iso", "300", "--size", "16x16"});
+    const ProcessResult r = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", mode,
+                                        "--iso", "300", "--size", "16x16"});
     EXPECT_EQ(r.exitCode, 0) << mode << ": " << r.err;
   }
-  const ProcessResult missing = runProcess({render, (dir / "none.nrrd").string(), "-o", out,
-                                            "--preset", "bone"});
+  const ProcessResult missing =
+      runProcess({render, (dir / "none.nrrd").string(), "-o", out, "--preset", "bone"});
   EXPECT_EQ(missing.exitCode, 1);
   EXPECT_NE(missing.err.find("none.nrrd"), std::string::npos) << missing.err;
   std::ofstream(dir / "bad.octoray") << "OCTORAY\x1a" << std::string(40, 'x');
-  const ProcessResult bad = runProcess({render, (dir / "bad.octoray").string(), "-o", out,
-                                        "--preset", "bone"});
+  const ProcessResult bad =
+      runProcess({render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone"});
   EXPECT_EQ(bad.exitCode, 1);
   EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "iso"}).exitCode, 1);

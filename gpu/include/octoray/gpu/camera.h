@@ -41,9 +41,9 @@ struct Camera {
   Projection projection = Projection::Perspective;
   Vec3 eye{0, -500, 0};
   Vec3 target{0, 0, 0};
-  Vec3 up{0, 0, 1};             // need not be orthogonal to the view direction, not parallel
-  double fovYDegrees = 30.0;    // perspective: full vertical field of view, in (0, 180)
-  double orthoHeightMm = 300.0; // orthographic: visible height in mm
+  Vec3 up{0, 0, 1};              // need not be orthogonal to the view direction, not parallel
+  double fovYDegrees = 30.0;     // perspective: full vertical field of view, in (0, 180)
+  double orthoHeightMm = 300.0;  // orthographic: visible height in mm
   int width = 512;
   int height = 512;
 

@@ -12,14 +12,14 @@
 namespace octoray::gpu {
 
 struct ImageMetrics {
-  double rmse = 0;          // root mean square error over R, G, B of finite pixels
-  double psnrDb = 0;        // 20 log10(1 / rmse) with a peak of 1.0; +inf for equal images
-  double ssim = 1;          // mean SSIM of R, G, B (cv::quality::QualitySSIM, on 0..255 after
-                            // clamping to [0, 1])
-  double maxAbsError = 0;   // largest R, G or B difference over finite pixels
+  double rmse = 0;             // root mean square error over R, G, B of finite pixels
+  double psnrDb = 0;           // 20 log10(1 / rmse) with a peak of 1.0; +inf for equal images
+  double ssim = 1;             // mean SSIM of R, G, B (cv::quality::QualitySSIM, on 0..255 after
+                               // clamping to [0, 1])
+  double maxAbsError = 0;      // largest R, G or B difference over finite pixels
   bool alphaCompared = false;  // both images carry alpha
   double maxAlphaError = 0;    // largest alpha difference (when alphaCompared)
-  int64_t nonFiniteA = 0;   // pixels of `a` with a NaN or infinite channel
+  int64_t nonFiniteA = 0;      // pixels of `a` with a NaN or infinite channel
   int64_t nonFiniteB = 0;
   int64_t pixels = 0;
 };

@@ -71,13 +71,13 @@ struct RenderOptions {
   enum class Shading { FromTransferFunction, On, Off } shading = Shading::FromTransferFunction;
   bool gradientOpacity = true;  // apply the TF's gradient-opacity points (if it has any)
   BoundaryEnhancement boundary;
-  double isoValue = 0;          // RenderMode::Iso, physical units
+  double isoValue = 0;  // RenderMode::Iso, physical units
 };
 
 struct RenderStats {
-  int64_t samples = 0;        // interpolant evaluations for classification / search
-  int64_t raysHit = 0;        // rays whose chord through the domain is non-empty
-  double stepMm = 0;          // the step actually used
+  int64_t samples = 0;  // interpolant evaluations for classification / search
+  int64_t raysHit = 0;  // rays whose chord through the domain is non-empty
+  double stepMm = 0;    // the step actually used
 };
 
 struct RenderResult {
