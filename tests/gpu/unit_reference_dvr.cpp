@@ -355,5 +355,46 @@ TEST(ReferenceDvr, ShadedSphereImage) {
   saveIfFailed(a.image, "shaded-sphere");
 }
 
+// Whole images through perspective cameras (outside with some pixels missing, and inside the
+// volume with a wide field of view) on a sheared grid: every pixel is the exact chord's answer.
+TEST(ReferenceDvr, PerspectiveImagesMatchChordsPerPixel) {
+  const Mat4 tilted = Mat4::fromColumns({0.7, 0, 0}, {0, 0.7, 0}, {0, 0.6, 1.5}, {-5, 5, 100});
+  const auto volume = makeVolume({14, 12, 9}, tilted, [](auto...) { return 1.0; });
+  const auto tf = constantTf(0.03f);
+  const double a = static_cast<double>(0.03f);
+  gpu::OrbitParameters orbit;
+  orbit.width = 24;
+  orbit.height = 18;
+  orbit.azimuthDegrees = 40;
+  orbit.elevationDegrees = 25;
+  orbit.zoom = 1.3;
+  gpu::Camera outside = gpu::orbitCamera({volume.dims(), volume.patientFromIndex()}, orbit);
+  gpu::Camera inside = outside;
+  inside.eye = tilted.transformPoint({4.2, 6.1, 3.3});
+  inside.fovYDegrees = 100;
+  gpu::reference::RenderOptions options;
+  options.earlyTermination = 1.0;
+  gpu::reference::ReferenceRenderer renderer(volume);
+  for (int which = 0; which < 2; ++which) {
+    const gpu::Camera& camera = which == 0 ? outside : inside;
+    const auto result = renderer.render(camera, tf, options);
+    int hits = 0, misses = 0;
+    for (int y = 0; y < camera.height; ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const gpu::Ray ray = camera.ray(x, y);
+        const double chord = domainChord(volume, ray.origin, ray.direction);
+        const double expected = 1.0 - std::pow(1.0 - a, chord);
+        EXPECT_NEAR(result.image.pixel(x, y)[3], expected, 1e-6 * expected + 1e-7) << x << "," << y;
+        (chord > 0 ? hits : misses) += 1;
+      }
+    }
+    EXPECT_GT(hits, 20);
+    if (which == 0) {
+      EXPECT_GT(misses, 20);
+    }
+    saveIfFailed(result.image, "perspective");
+  }
+}
+
 }  // namespace
 }  // namespace octoray::test
