@@ -95,6 +95,8 @@ struct Chord {
 Chord clipToDomain(const Vec3& originIndex, const Vec3& directionIndex,
                    const std::array<int64_t, 3>& dims, double tMin = 0.0);
 
+// Renders one ReferenceVolume; the volume must outlive the renderer. const and thread-safe:
+// several frames may render from one renderer at once.
 class ReferenceRenderer {
  public:
   explicit ReferenceRenderer(const ReferenceVolume& volume) : volume_(volume) {}
