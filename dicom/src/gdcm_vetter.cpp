@@ -1,18 +1,26 @@
 // Vetting files with GDCM in child processes. Debian's GDCM is built with assertions, and a
 // truncated or malformed file can make it abort() the process that parses it. Each file is
-// therefore first parsed by a long-lived child (one fork serves many files: a fork costs far
-// more than a parse); when the child dies on a file, that file is reported and a new child
-// is started for the next one.
+// therefore first parsed by a long-lived child (one start serves many files: starting a
+// process costs far more than a parse); when the child dies on a file, that file is reported
+// and a new child is started for the next one.
+//
+// The child is this same program started afresh (posix_spawn of /proc/self/exe) with
+// OCTORAY_GDCM_VETTER naming its socket: a constructor below turns it into the vetter before
+// main() runs. A fork() would copy a multithreaded process whose other threads may hold locks
+// (the allocator's, GDCM's, TBB's) and could deadlock the child.
 
 #include <fcntl.h>
 #include <gdcmImageReader.h>
+#include <spawn.h>
 #include <gdcmReader.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -22,6 +30,9 @@
 
 namespace octoray::dicom::detail {
 namespace {
+
+constexpr const char* kVetterVariable = "OCTORAY_GDCM_VETTER";
+constexpr int kChildFd = 3;
 
 bool sendAll(int fd, const void* data, std::size_t bytes) {
   const auto* p = static_cast<const char*>(data);
@@ -75,9 +86,23 @@ uint8_t parseInChild(const std::string& path) {
   }
 }
 
+// Runs before main(): a process started as a vetter serves its parent and never returns.
+__attribute__((constructor)) void becomeVetterIfAsked() {
+  const char* fd = std::getenv(kVetterVariable);
+  if (fd && *fd) childLoop(std::atoi(fd));
+}
+
 class Vetter {
  public:
   ~Vetter() { stop(); }
+
+  // A process forked from the one that started the child must not share its conversation.
+  bool ownedByThisProcess() const { return owner_ == ::getpid(); }
+  void abandon() {
+    if (fd_ >= 0) ::close(fd_);  // our copy only; the child belongs to another process
+    fd_ = -1;
+    pid_ = -1;
+  }
 
   // True when GDCM survives parsing `path` (whether or not it understood it).
   bool survives(const std::string& path) {
@@ -98,19 +123,30 @@ class Vetter {
     if (::socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, fds) != 0) {
       throw Error(path, std::string("cannot create a socket to vet the file: ") + std::strerror(errno));
     }
-    const pid_t pid = ::fork();
-    if (pid < 0) {
-      ::close(fds[0]);
-      ::close(fds[1]);
-      throw Error(path, std::string("cannot fork to vet the file: ") + std::strerror(errno));
+    // The child gets its end as descriptor 3 (dup2 clears close-on-exec) and nothing else.
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_adddup2(&actions, fds[1], kChildFd);
+    std::vector<std::string> environment{std::string(kVetterVariable) + "=" + std::to_string(kChildFd)};
+    for (char** e = environ; *e; ++e) {
+      if (std::strncmp(*e, kVetterVariable, std::strlen(kVetterVariable)) != 0) environment.emplace_back(*e);
     }
-    if (pid == 0) {
-      ::close(fds[0]);
-      childLoop(fds[1]);
-    }
+    std::vector<char*> envp;
+    for (auto& e : environment) envp.push_back(e.data());
+    envp.push_back(nullptr);
+    char name[] = "octoray-gdcm-vetter";
+    char* argv[] = {name, nullptr};
+    pid_t pid = -1;
+    const int error = ::posix_spawn(&pid, "/proc/self/exe", &actions, nullptr, argv, envp.data());
+    posix_spawn_file_actions_destroy(&actions);
     ::close(fds[1]);
+    if (error != 0) {
+      ::close(fds[0]);
+      throw Error(path, std::string("cannot start the vetting process: ") + std::strerror(error));
+    }
     pid_ = pid;
     fd_ = fds[0];
+    owner_ = ::getpid();
   }
 
   void stop() {
@@ -125,6 +161,7 @@ class Vetter {
   }
 
   pid_t pid_ = -1;
+  pid_t owner_ = -1;
   int fd_ = -1;
 };
 
@@ -145,6 +182,10 @@ void vetWithGdcm(const std::string& path) {
       vetter = std::move(pool().back());
       pool().pop_back();
     }
+  }
+  if (vetter && !vetter->ownedByThisProcess()) {
+    vetter->abandon();
+    vetter.reset();
   }
   if (!vetter) vetter = std::make_unique<Vetter>();
   const bool survived = vetter->survives(path);

@@ -281,7 +281,7 @@ TEST(StackSynthetic, MissingSliceResampledWithWarning) {
   checkWrittenPixels(spec, written, loaded);
   // The missing slice is interpolated across a 2.5 mm gap: linear field, so only storage
   // rounding (slope/2) and output rounding (0.5) remain.
-  const SyntheticImage& before = written.slices()[2];
+  const SyntheticImage before = written.slices()[2];  // a copy: slices() returns a new vector
   const double toleranceHu = spec.rescaleSlope / 2 + 0.5 + 1e-3;
   for (int r = 0; r < spec.rows; ++r) {
     for (int c = 0; c < spec.columns; ++c) {
