@@ -103,18 +103,24 @@ void validate(const TransferFunction& tf, const std::string& path) {
   for (std::size_t i = 0; i < tf.color.size(); ++i) {
     const ColorPoint& p = tf.color[i];
     require(finite(p.value), path, field("color", i), "value is not a finite number");
-    require(i == 0 || p.value >= tf.color[i - 1].value, path, field("color", i),
-            fmt::format("value {} is below the previous point's {} (points must be sorted)",
-                        p.value, tf.color[i - 1].value));
+    // The message names the previous point, so it is only built when there is one.
+    if (i > 0) {
+      require(p.value >= tf.color[i - 1].value, path, field("color", i),
+              fmt::format("value {} is below the previous point's {} (points must be sorted)",
+                          p.value, tf.color[i - 1].value));
+    }
     require(unitInterval(p.r) && unitInterval(p.g) && unitInterval(p.b), path, field("color", i),
             fmt::format("colour ({}, {}, {}) is outside [0, 1]", p.r, p.g, p.b));
   }
   for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
     const OpacityPoint& p = tf.opacity[i];
     require(finite(p.value), path, field("opacity", i), "value is not a finite number");
-    require(i == 0 || p.value >= tf.opacity[i - 1].value, path, field("opacity", i),
-            fmt::format("value {} is below the previous point's {} (points must be sorted)",
-                        p.value, tf.opacity[i - 1].value));
+    // The message names the previous point, so it is only built when there is one.
+    if (i > 0) {
+      require(p.value >= tf.opacity[i - 1].value, path, field("opacity", i),
+              fmt::format("value {} is below the previous point's {} (points must be sorted)",
+                          p.value, tf.opacity[i - 1].value));
+    }
     require(unitInterval(p.alpha), path, field("opacity", i),
             fmt::format("alpha {} is outside [0, 1]", p.alpha));
   }
@@ -124,10 +130,12 @@ void validate(const TransferFunction& tf, const std::string& path) {
     // the function near 0, so they are accepted.
     require(finite(p.magnitude), path, field("gradientOpacity", i),
             fmt::format("magnitude {} is not a finite number", p.magnitude));
-    require(i == 0 || p.magnitude >= tf.gradientOpacity[i - 1].magnitude, path,
-            field("gradientOpacity", i),
-            fmt::format("magnitude {} is below the previous point's {} (points must be sorted)",
-                        p.magnitude, tf.gradientOpacity[i - 1].magnitude));
+    // The message names the previous point, so it is only built when there is one.
+    if (i > 0) {
+      require(p.magnitude >= tf.gradientOpacity[i - 1].magnitude, path, field("gradientOpacity", i),
+              fmt::format("magnitude {} is below the previous point's {} (points must be sorted)",
+                          p.magnitude, tf.gradientOpacity[i - 1].magnitude));
+    }
     require(unitInterval(p.alpha), path, field("gradientOpacity", i),
             fmt::format("alpha {} is outside [0, 1]", p.alpha));
   }
