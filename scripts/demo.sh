@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The main job on a built-in default: write a small synthetic CT exam (a tilted axial series
 # with a localiser beside it), list and inspect it with octoray-import, export it to NIfTI,
-# build its octree store and validate the store. Usage: scripts/demo.sh [BUILD_DIR]
+# build its octree store and validate the store; then a synthetic head phantom is built into a
+# store and rendered to BUILD_DIR/octoray-demo.png. Usage: scripts/demo.sh [BUILD_DIR]
 set -euo pipefail
 build=${1:-build}
 out=$(mktemp -d "${TMPDIR:-/tmp}/octoray-demo.XXXXXX")
@@ -18,3 +19,10 @@ echo
 "$build/bin/octoray-import" "$out/exam" -o "$out/exam.octoray"
 echo
 "$build/bin/octoray-validate" "$out/exam.octoray"
+echo
+# A synthetic head CT through the whole chain, rendered by the CPU reference renderer.
+"$build/bin/octoray-phantom" --size 160x160x160 -o "$out/head.nhdr"
+"$build/bin/octoray-import" "$out/head.nhdr" -o "$out/head.octoray"
+"$build/bin/octoray-render" "$out/head.octoray" -o "$build/octoray-demo.png" --preset bone \
+  --size 384x384 --azimuth 30 --elevation 15
+echo "picture: $build/octoray-demo.png"
