@@ -81,8 +81,18 @@ StoreHeader headerOf(const Bytes& bytes) {
   return h;
 }
 
-NodeRecord* nodeTable(Bytes& bytes) {
-  return reinterpret_cast<NodeRecord*>(bytes.data() + headerOf(bytes).nodeTableOffset);
+// The node table, copied out of (and back into) the file's bytes: the table need not be
+// aligned in the file, so it is never accessed in place.
+std::vector<NodeRecord> readTable(const Bytes& bytes) {
+  const StoreHeader h = headerOf(bytes);
+  std::vector<NodeRecord> table(h.nodeCount);
+  std::memcpy(table.data(), bytes.data() + h.nodeTableOffset, h.nodeTableBytes);
+  return table;
+}
+
+void writeTable(Bytes& bytes, const std::vector<NodeRecord>& table) {
+  const StoreHeader h = headerOf(bytes);
+  std::memcpy(bytes.data() + h.nodeTableOffset, table.data(), h.nodeTableBytes);
 }
 
 // Recomputes the node table checksum and the header checksum, so that only the intended
@@ -222,11 +232,12 @@ TEST_F(DamagedStore, SwappedBricksFailBordersOrFilterNotChecksums) {
   ASSERT_NE(store.readBrick(a).u16, store.readBrick(b).u16);
   // Each record points at the other's payload, with the other's checksum: every brick still
   // reads and verifies, but sits in the wrong place.
-  NodeRecord* table = nodeTable(bytes_);
+  std::vector<NodeRecord> table = readTable(bytes_);
   std::swap(table[a].payloadOffset, table[b].payloadOffset);
   std::swap(table[a].payloadBytes, table[b].payloadBytes);
   std::swap(table[a].gradientBytes, table[b].gradientBytes);
   std::swap(table[a].payloadChecksum, table[b].payloadChecksum);
+  writeTable(bytes_, table);
   resealChecksums(bytes_);
   const ValidationReport report = validateStore(copyWith(path_, "swapped.octoray", bytes_));
   EXPECT_EQ(report.find("header")->status, CheckStatus::Passed);
@@ -242,9 +253,10 @@ TEST_F(DamagedStore, NarrowedRangeFailsRanges) {
   const StoreReader store(path_);
   const int64_t id = payloadNode(store, 2);
   ASSERT_GE(id, 0);
-  NodeRecord* table = nodeTable(bytes_);
+  std::vector<NodeRecord> table = readTable(bytes_);
   ASSERT_LT(table[id].minValue, table[id].maxValue);
   table[id].minValue = table[id].maxValue;
+  writeTable(bytes_, table);
   resealChecksums(bytes_);
   const ValidationReport report = validateStore(copyWith(path_, "range.octoray", bytes_));
   expectOnlyFailing(report, {"ranges"});
@@ -260,11 +272,12 @@ TEST_F(DamagedStore, ConstantNodeWithWideRangeFailsConstants) {
     if (store.node(n).flags & kNodeConstant) id = n;
   }
   ASSERT_GE(id, 0) << "the test volume has constant bricks of air";
-  NodeRecord* table = nodeTable(bytes_);
+  std::vector<NodeRecord> table = readTable(bytes_);
   // Its range moved above its own value: the value no longer lies in the range.
   const float width = table[id].maxValue - table[id].minValue;
   table[id].minValue += width + 10;
   table[id].maxValue += width + 10;
+  writeTable(bytes_, table);
   resealChecksums(bytes_);
   const ValidationReport report = validateStore(copyWith(path_, "constant.octoray", bytes_));
   ASSERT_FALSE(report.find("constants")->passed());
