@@ -1,31 +1,41 @@
 // octoray-render: renders a volume (an octree store or anything openVolume reads) to PNG and
-// optionally OpenEXR (float RGBA + depth). Today the CPU reference renderer is the only
-// renderer, so --reference is accepted and implied; the GPU raycaster joins later (issue 5),
-// when --reference will select the oracle instead of the default GPU path.
+// optionally OpenEXR (float RGBA + depth). By default with the GPU raycaster (gpu_renderer.h)
+// in a headless GL context over the store's working set; --reference selects the CPU
+// reference renderer (the double-precision oracle). Inputs that are not stores are built into
+// a temporary store first for the GPU path (border 2, removed afterwards).
 //   octoray-render PATH -o OUT.png [--exr OUT.exr] --mode dvr|iso|mip
 //     --preset NAME | --tf FILE [--tf-name NAME]  [--iso HU]  --size WxH
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
+//     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
+//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE]] | --reference
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <fstream>
 #include <iostream>
+#include <filesystem>
 #include <optional>
+#include <random>
 #include <string>
+#include <vector>
 
 #include "cli_support.h"
 #include "octoray/dicom/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/camera.h"
+#include "octoray/gpu/gl_context.h"
+#include "octoray/gpu/gpu_renderer.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/reference/reference_renderer.h"
 #include "octoray/transfer/transfer_function_io.h"
+#include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_format.h"
 #include "octoray/volume/store_reader.h"
 
@@ -40,8 +50,12 @@ struct Arguments {
   std::string camera, saveCamera, projection = "perspective", shading = "auto";
   std::optional<double> iso;
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
-  bool reference = false, json = false, srgb = false, noGradientOpacity = false;
-  int threads = 0;
+  bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
+  bool gradientPool = false;
+  double lodPixels = 1.0, orbitDegrees = 0;
+  int frames = 1, threads = 0;
+  std::size_t poolMib = 1024;
+  std::string boundary, silhouette;
 };
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
@@ -101,19 +115,7 @@ RenderOptions renderOptions(const Arguments& a) {
   return o;
 }
 
-int run(const Arguments& a) {
-  std::optional<tbb::global_control> threadLimit;
-  if (a.threads > 0) {
-    threadLimit.emplace(tbb::global_control::max_allowed_parallelism,
-                        static_cast<std::size_t>(a.threads));
-  }
-  const transfer::TransferFunction tf = loadTransferFunction(a);
-  const RenderOptions options = renderOptions(a);
-
-  auto start = std::chrono::steady_clock::now();
-  const auto volume = loadVolume(a.path);
-  const double loadMs = millisecondsSince(start);
-
+gpu::Camera makeCamera(const Arguments& a, const gpu::VolumeDomain& domain) {
   gpu::Camera camera;
   if (!a.camera.empty()) {
     camera = gpu::loadCamera(a.camera);
@@ -125,13 +127,100 @@ int run(const Arguments& a) {
     orbit.fovYDegrees = a.fovY;
     orbit.projection = a.projection == "orthographic" ? gpu::Projection::Orthographic
                                                       : gpu::Projection::Perspective;
-    camera = gpu::orbitCamera({volume.dims(), volume.patientFromIndex()}, orbit);
+    camera = gpu::orbitCamera(domain, orbit);
   }
   if (a.camera.empty() || !a.size.empty()) {
     const auto size = parseSize(a.size);
     camera.width = size[0];
     camera.height = size[1];
   }
+  return camera;
+}
+
+// v turned by `degrees` about the unit axis (Rodrigues).
+Vec3 rotate(Vec3 v, Vec3 axis, double degrees) {
+  const double r = degrees * 3.14159265358979323846 / 180.0;
+  const double c = std::cos(r), s = std::sin(r);
+  return v * c + cross(axis, v) * s + axis * (dot(axis, v) * (1 - c));
+}
+
+// Frame `frame` of the timing loop: the camera turned frame * orbitDegrees about the volume's
+// centre (the orbit's azimuth, or the camera's up axis for a --camera file).
+gpu::Camera frameCamera(const Arguments& a, const gpu::VolumeDomain& domain,
+                        const gpu::Camera& first, int frame) {
+  const double turn = frame * a.orbitDegrees;
+  if (turn == 0.0) return first;
+  if (a.camera.empty()) {
+    Arguments turned = a;
+    turned.azimuth = a.azimuth + turn;
+    gpu::Camera camera = makeCamera(turned, domain);
+    camera.width = first.width;
+    camera.height = first.height;
+    return camera;
+  }
+  gpu::Camera camera = first;
+  const Vec3 centre = domain.centrePatient();
+  const Vec3 axis = normalize(first.up);
+  camera.eye = centre + rotate(first.eye - centre, axis, turn);
+  camera.target = centre + rotate(first.target - centre, axis, turn);
+  return camera;
+}
+
+double median(std::vector<double> values) {
+  std::sort(values.begin(), values.end());
+  const std::size_t n = values.size();
+  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+gpu::Enhancement parseEnhancement(const std::string& text, const char* option) {
+  gpu::Enhancement e;
+  if (text.empty()) return e;
+  double kc = 0, ks = 0, ke = 0;
+  char extra = 0;
+  if (std::sscanf(text.c_str(), "%lf,%lf,%lf%c", &kc, &ks, &ke, &extra) != 3 ||
+      !std::isfinite(kc) || !std::isfinite(ks) || !std::isfinite(ke) || ke < 0) {
+    throw Error("", fmt::format("{} \"{}\": expected KC,KS,KE (finite, KE >= 0)", option, text));
+  }
+  e.enabled = true;
+  e.kC = kc;
+  e.kS = ks;
+  e.kE = ke;
+  return e;
+}
+
+// A store built from a non-store input for the GPU path, removed when done.
+class TemporaryStore {
+ public:
+  explicit TemporaryStore(const std::string& input) {
+    std::random_device random;
+    path_ = std::filesystem::temp_directory_path() /
+            fmt::format("octoray-render-{:08x}.octoray", random());
+    auto source = openVolume(input);
+    volume::BuildOptions options;
+    options.border = 2;  // central differences of +-1 voxel for shading
+    volume::buildStore(*source, path_.string(), options);
+  }
+  ~TemporaryStore() {
+    std::error_code ignored;
+    std::filesystem::remove(path_, ignored);
+  }
+  TemporaryStore(const TemporaryStore&) = delete;
+  TemporaryStore& operator=(const TemporaryStore&) = delete;
+  std::string path() const { return path_.string(); }
+
+ private:
+  std::filesystem::path path_;
+};
+
+int runReference(const Arguments& a) {
+  const transfer::TransferFunction tf = loadTransferFunction(a);
+  const RenderOptions options = renderOptions(a);
+
+  auto start = std::chrono::steady_clock::now();
+  const auto volume = loadVolume(a.path);
+  const double loadMs = millisecondsSince(start);
+
+  const gpu::Camera camera = makeCamera(a, {volume.dims(), volume.patientFromIndex()});
   if (!a.saveCamera.empty()) gpu::saveCamera(camera, a.saveCamera);
 
   start = std::chrono::steady_clock::now();
@@ -164,11 +253,133 @@ int run(const Arguments& a) {
   return 0;
 }
 
+int runGpu(const Arguments& a) {
+  const transfer::TransferFunction tf = loadTransferFunction(a);
+  const RenderOptions reference = renderOptions(a);
+  gpu::RaycastOptions options;
+  options.mode = a.mode == "iso" ? gpu::RaycastMode::Iso
+                 : a.mode == "mip" ? gpu::RaycastMode::Mip
+                                   : gpu::RaycastMode::Dvr;
+  options.isoValue = reference.isoValue;
+  options.stepMm = a.stepMm;
+  options.earlyTermination = a.earlyTermination;
+  options.shading = a.shading == "on"    ? gpu::RaycastOptions::Shading::On
+                    : a.shading == "off" ? gpu::RaycastOptions::Shading::Off
+                                         : gpu::RaycastOptions::Shading::FromTransferFunction;
+  options.gradientOpacity = !a.noGradientOpacity;
+  options.boundary = parseEnhancement(a.boundary, "--boundary");
+  options.silhouette = parseEnhancement(a.silhouette, "--silhouette");
+  if (!(a.lodPixels >= 0 && std::isfinite(a.lodPixels))) {
+    throw Error("", fmt::format("--lod-pixels {}: must be >= 0", a.lodPixels));
+  }
+  options.lodPixels = a.lodPixels;
+
+  auto start = std::chrono::steady_clock::now();
+  std::optional<TemporaryStore> temporary;
+  if (!isStore(a.path)) temporary.emplace(a.path);
+  const volume::StoreReader store(temporary ? temporary->path() : a.path);
+  const double loadMs = millisecondsSince(start);
+
+  const gpu::VolumeDomain domain{store.layout().levelDims(store.layout().leafLevel()),
+                                 store.patientFromIndex()};
+  const gpu::Camera camera = makeCamera(a, domain);
+  if (!a.saveCamera.empty()) gpu::saveCamera(camera, a.saveCamera);
+
+  start = std::chrono::steady_clock::now();
+  const auto context = gpu::createHeadlessContext();
+  gpu::RendererConfig config;
+  config.poolBytes = a.poolMib << 20;
+  config.gradientPool = a.gradientPool;
+  gpu::GpuRenderer renderer(store, config);
+  const double setupMs = millisecondsSince(start);
+
+  // The timing loop: each frame's ms is the whole render() call (working-set selection,
+  // uploads, index, the raycasting pass finished, read-back). With --json each frame is then
+  // rendered again, untimed, by the counting variant for the per-pixel statistics.
+  std::vector<double> framesMs;
+  nlohmann::json frames = nlohmann::json::array();
+  gpu::Frame last;
+  for (int f = 0; f < a.frames; ++f) {
+    const gpu::Camera view = frameCamera(a, domain, camera, f);
+    options.stats = false;
+    start = std::chrono::steady_clock::now();
+    gpu::Frame frame = renderer.render(view, tf, options);
+    const double ms = millisecondsSince(start);
+    framesMs.push_back(ms);
+    nlohmann::json record = {{"ms", ms},
+                             {"drawMs", frame.stats.drawMs},
+                             {"selectMs", frame.stats.selectMs},
+                             {"uploadMs", frame.stats.uploadMs},
+                             {"bricksUploaded", frame.stats.bricksUploaded},
+                             {"workingSetBricks", frame.stats.workingSetBricks},
+                             {"emptyNodes", frame.stats.emptyNodes},
+                             {"poolSlots", frame.stats.poolSlots},
+                             {"poolBytes", frame.stats.poolBytes},
+                             {"poolBytesUsed", frame.stats.poolBytesUsed}};
+    if (a.json) {
+      options.stats = true;
+      const gpu::Frame counted = renderer.render(view, tf, options);
+      record["samplesPerPixel"] = counted.stats.samplesPerPixel;
+      record["contributingSamplesPerPixel"] = counted.stats.contributingPerPixel;
+      record["leavesPerPixel"] = counted.stats.leavesPerPixel;
+      record["bricksTouched"] = counted.stats.bricksTouched;
+      record["pixelsCovered"] = counted.stats.pixelsCovered;
+    }
+    frames.push_back(std::move(record));
+    if (f == 0) last = std::move(frame);  // the image written is frame 0's view
+  }
+  const std::vector<double> steady =
+      framesMs.size() > 1 ? std::vector<double>(framesMs.begin() + 1, framesMs.end()) : framesMs;
+  const double medianMs = median(steady);
+
+  gpu::writePng(last.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
+  if (!a.exr.empty()) gpu::writeExr(last.image, a.exr);
+
+  if (a.json) {
+    std::vector<std::string> defines = renderer.variantDefines(tf, options, camera.projection);
+    const nlohmann::json report = {
+        {"renderer", "gpu"},
+        {"glRenderer", context->renderer()},
+        {"glVersion", context->version()},
+        {"mode", a.mode},
+        {"transferFunction", tf.name},
+        {"dims", domain.dims},
+        {"width", camera.width},
+        {"height", camera.height},
+        {"lodPixels", a.lodPixels},
+        {"stepMm", a.stepMm > 0 ? a.stepMm : renderer.defaultStepMm()},
+        {"variant", defines},
+        {"timingMs", {{"load", loadMs}, {"setup", setupMs}}},
+        {"firstFrameMs", framesMs.front()},
+        {"medianMs", medianMs},
+        {"medianOf", framesMs.size() > 1 ? "frames after the first" : "the only frame"},
+        {"frames", frames},
+        {"camera", gpu::cameraToJson(camera)},
+        {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
+    std::cout << report.dump(2) << '\n';
+  } else {
+    fmt::print("{}: {}x{} {} on {} in {:.0f} ms median ({} frames, first {:.0f} ms), "
+               "{} bricks in the working set\n",
+               a.output, camera.width, camera.height, a.mode, context->renderer(), medianMs,
+               a.frames, framesMs.front(), last.stats.workingSetBricks);
+  }
+  return 0;
+}
+
+int run(const Arguments& a) {
+  std::optional<tbb::global_control> threadLimit;
+  if (a.threads > 0) {
+    threadLimit.emplace(tbb::global_control::max_allowed_parallelism,
+                        static_cast<std::size_t>(a.threads));
+  }
+  return a.reference ? runReference(a) : runGpu(a);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{
-      "Renders a CT volume with the CPU reference renderer (the GPU renderer joins later)."};
+      "Renders a CT volume with the GPU raycaster (default) or the CPU reference renderer."};
   Arguments a;
   app.add_option("path", a.path, "octree store, DICOM folder or volume file")->required();
   app.add_option("-o,--output", a.output, "PNG to write (colour over black, 8-bit)")->required();
@@ -205,7 +416,27 @@ int main(int argc, char** argv) {
   app.add_flag("--no-gradient-opacity", a.noGradientOpacity, "ignore the TF's gradient opacity");
   app.add_flag("--srgb", a.srgb,
                "sRGB-encode the PNG (default: clamp, as VTK and Slicer show TF colours)");
-  app.add_flag("--reference", a.reference, "use the CPU reference renderer (today the only one)");
+  auto* referenceFlag =
+      app.add_flag("--reference", a.reference, "use the CPU reference renderer (the oracle)");
+  auto* gpuFlag = app.add_flag("--gpu", a.gpu, "use the GPU raycaster (the default)");
+  gpuFlag->excludes(referenceFlag);
+  app.add_option("--lod-pixels", a.lodPixels,
+                 "GPU: refine while a node's voxels project to more than F pixels; 0: finest "
+                 "level everywhere")
+      ->capture_default_str();
+  app.add_option("--frames", a.frames, "GPU: frames to render (the timing loop)")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  app.add_option("--orbit", a.orbitDegrees, "GPU: degrees the camera turns each frame")
+      ->capture_default_str();
+  app.add_option("--pool-mib", a.poolMib, "GPU: brick pool budget in MiB")
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str();
+  app.add_flag("--gradient-pool", a.gradientPool,
+               "GPU: shade from the store's precomputed gradients (import with --gradients)");
+  app.add_option("--boundary", a.boundary, "GPU: boundary enhancement KC,KS,KE");
+  app.add_option("--silhouette", a.silhouette,
+                 "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")
       ->check(CLI::NonNegativeNumber);
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
@@ -215,6 +446,14 @@ int main(int argc, char** argv) {
       throw CLI::ValidationError("--preset or --tf", "one of them is required");
     }
     if (!a.camera.empty() && size->count() == 0) a.size.clear();
+    if (a.reference) {
+      for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
+                                  "--gradient-pool", "--boundary", "--silhouette"}) {
+        if (app.count(gpuOnly) > 0) {
+          throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
+        }
+      }
+    }
   } catch (const CLI::Success& e) {
     return app.exit(e);
   } catch (const CLI::Error& e) {

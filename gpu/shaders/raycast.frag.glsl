@@ -1,0 +1,502 @@
+#version 450 core
+// The single-pass raycaster (paper 003 §5, DESIGN.md "Rendering"). One invocation per pixel
+// walks the spatial index (gpu/include/octoray/gpu/spatial_index.h documents the encoding and
+// the traversal; traverseRay there mirrors the loop below operation for operation) front to
+// back and samples each data leaf's brick in the pool.
+//
+// Variants (the #define prelude, see gpu_renderer.cpp): exactly one of MODE_DVR, MODE_ISO,
+// MODE_MIP; SHADING (Phong; gradients exist only then), GRADIENT_OPACITY, BOUNDARY_ENHANCEMENT,
+// SILHOUETTE_ENHANCEMENT (view-dependent transparency), GRADIENT_POOL (gradients read from the
+// RGBA8 pool instead of 6 value fetches), STATS (per-pixel counters), PERSPECTIVE;
+// BRICK_SIZE, BORDER and GRADIENT_DELTA are numbers.
+//
+// Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
+// the index; texel space is the pool texture's (texel centres at i + 0.5).
+
+layout(std430, binding = 0) readonly buffer IndexNodes { uint nodes[]; };
+layout(std430, binding = 1) readonly buffer IndexLeaves { uint leaves[]; };
+// Transfer-function control points in physical units, for evaluations made once per pixel
+// (MIP, isosurface) or on the rare shading path (gradient opacity): colour points
+// (value, r, g, b), then opacity points (value, alpha, 0, 0), then gradient-opacity points
+// (magnitude, alpha, 0, 0).
+layout(std430, binding = 2) readonly buffer TfPoints { vec4 tfPoints[]; };
+#ifdef STATS
+layout(std430, binding = 3) buffer Touched { uint touched[]; };
+#endif
+
+uniform vec3 uEye;            // patient mm
+uniform vec3 uForward, uRight, uUp;
+uniform vec2 uHalfExtent;     // perspective: tan(fov/2) * (aspect, 1); orthographic: mm
+uniform vec2 uViewport;       // width, height in pixels
+uniform mat3 uQFromPatient;   // linear part, patient mm -> octree space
+uniform vec3 uQOffset;        // octree-space position of the patient origin
+uniform vec3 uDomainMax;      // the volume's domain in octree space: [0, uDomainMax]
+uniform mat3 uNormalFromIndex;  // patient gradient from a leaf-index gradient
+uniform int uLeafLevel;
+uniform int uMaxIterations;
+uniform float uStepMm;        // the finest step; each ray's chord is cut into equal steps <= it
+uniform float uInvUnitDistance;
+uniform float uEarlyTermination;
+uniform float uNear, uFar;    // gl_FragDepth mapping (mm along the view axis)
+
+uniform sampler3D uPool;      // GL_LINEAR, values of the bricks
+uniform vec3 uPoolInvSize;    // 1 / pool size in texels
+uniform ivec2 uSlotGrid;      // slots per row (x) and per layer (x * y)
+uniform float uValueScale, uValueOffset;  // physical = texel * scale + offset
+#ifdef GRADIENT_POOL
+uniform sampler3D uGradientPool;
+uniform float uGradientScale;
+#endif
+
+uniform sampler1D uTf;        // rgb, extinction -ln(1 - alpha) per unit distance
+uniform vec2 uTfMap;          // tf coordinate = value * uTfMap.x + uTfMap.y
+uniform int uColorPoints, uOpacityPoints, uGradientPoints;
+
+uniform vec4 uMaterial;       // ambient, diffuse, specular, specular power
+uniform vec3 uBoundary;       // kC, kS, kE
+uniform vec3 uSilhouette;     // kC, kS, kE
+uniform float uIsoValue;
+
+layout(location = 0) out vec4 outColor;  // premultiplied
+layout(location = 1) out vec4 outAux;    // depth of the first contribution (mm), value, 0, 0
+#ifdef STATS
+layout(location = 2) out vec4 outStats;  // samples, contributing, leaves visited, data leaves
+#endif
+
+const float kInfinity = 1.0 / 0.0;
+const uint kInner = 2u;
+const uint kDataLeaf = 1u;
+const uint kNull = 0xFFFFFFFFu;
+
+// ---- transfer function from its control points (exact, once per pixel) ----
+float interpolatePoints(int first, int count, float x, int channel) {
+  if (x <= tfPoints[first].x || count == 1) return tfPoints[first][channel];
+  for (int i = first + 1; i < first + count; ++i) {
+    // The later point wins at a step: move on while x is at or beyond the next point.
+    if (x < tfPoints[i].x) {
+      vec4 a = tfPoints[i - 1], b = tfPoints[i];
+      float w = (x - a.x) / (b.x - a.x);
+      return a[channel] + w * (b[channel] - a[channel]);
+    }
+  }
+  return tfPoints[first + count - 1][channel];
+}
+
+vec4 classifyExact(float value) {
+  vec3 rgb = vec3(interpolatePoints(0, uColorPoints, value, 1),
+                  interpolatePoints(0, uColorPoints, value, 2),
+                  interpolatePoints(0, uColorPoints, value, 3));
+  return vec4(rgb, interpolatePoints(uColorPoints, uOpacityPoints, value, 1));
+}
+
+// ---- the brick pool ----
+vec3 slotOrigin(uint slot) {
+  uint sx = slot % uint(uSlotGrid.x);
+  uint sy = (slot / uint(uSlotGrid.x)) % uint(uSlotGrid.y / uSlotGrid.x);
+  uint sz = slot / uint(uSlotGrid.y);
+  return vec3(sx, sy, sz) * float(BRICK_SIZE + 2 * BORDER);
+}
+
+float valueAt(vec3 texel) {
+  return texture(uPool, texel * uPoolInvSize).r * uValueScale + uValueOffset;
+}
+
+#ifdef MODE_MIP
+// The trilinear interpolant inside one cell from its 8 texels (lo: z = 0 as x + 2y order,
+// hi: z = 1), at fractional position f (clamped to the cell).
+float trilinearCell(vec3 f, vec4 lo, vec4 hi) {
+  f = clamp(f, 0.0, 1.0);
+  vec4 z = mix(lo, hi, f.z);
+  vec2 y = mix(z.xy, z.zw, f.y);
+  return mix(y.x, y.y, f.x);
+}
+#endif
+
+#if defined(SHADING) || defined(GRADIENT_OPACITY) || defined(BOUNDARY_ENHANCEMENT) || \
+    defined(SILHOUETTE_ENHANCEMENT) || defined(MODE_ISO)
+#define NEEDS_GRADIENT
+// Patient-space gradient (value units per mm) at a texel position of a leaf whose samples
+// are `levelScale` leaf voxels apart.
+vec3 gradientAt(vec3 texel, float levelScale) {
+#ifdef GRADIENT_POOL
+  vec4 g = texture(uGradientPool, texel * uPoolInvSize);
+  vec3 dir = g.xyz * 2.0 - 1.0;
+  float len = length(dir);
+  return len > 0.0 ? dir * (g.w * uGradientScale / len) : vec3(0.0);
+#else
+  const float h = GRADIENT_DELTA;
+  vec3 gi = vec3(valueAt(texel + vec3(h, 0, 0)) - valueAt(texel - vec3(h, 0, 0)),
+                 valueAt(texel + vec3(0, h, 0)) - valueAt(texel - vec3(0, h, 0)),
+                 valueAt(texel + vec3(0, 0, h)) - valueAt(texel - vec3(0, 0, h)));
+  return uNormalFromIndex * (gi / (2.0 * h * levelScale));
+#endif
+}
+#endif
+
+#if defined(SHADING) || defined(MODE_ISO)
+vec3 phong(vec3 color, vec3 gradient, vec3 rayDir) {
+  float magnitude = length(gradient);
+  float diffuse = 0.0, specular = 0.0;
+  if (magnitude > 0.0) {
+    float nl = abs(dot(gradient / magnitude, rayDir));
+    diffuse = nl;
+    float rv = 2.0 * nl * nl - 1.0;
+    specular = rv > 0.0 ? pow(rv, uMaterial.w) : 0.0;
+  }
+  return color * (uMaterial.x + uMaterial.y * diffuse) + vec3(uMaterial.z * specular);
+}
+#endif
+
+void main() {
+  // The ray through this pixel's centre (Camera::ray; row 0 of the image is the top row).
+  vec2 s = (2.0 * gl_FragCoord.xy / uViewport - 1.0) * uHalfExtent;
+#ifdef PERSPECTIVE
+  vec3 origin = uEye;
+  vec3 dir = normalize(uForward + s.x * uRight + s.y * uUp);
+#else
+  vec3 origin = uEye + s.x * uRight + s.y * uUp;
+  vec3 dir = uForward;
+#endif
+  vec3 qo = uQFromPatient * origin + uQOffset;
+  vec3 dq = uQFromPatient * dir;
+
+  outColor = vec4(0.0);
+  outAux = vec4(kInfinity, 0.0, 0.0, 0.0);
+  gl_FragDepth = 1.0;
+#ifdef STATS
+  vec4 stats = vec4(0.0);
+  outStats = stats;
+#endif
+
+  // Clip to the domain (clipOctreeDomain).
+  float t0 = 0.0, t1 = kInfinity;
+  vec3 inv;
+  for (int a = 0; a < 3; ++a) {
+    float d = dq[a];
+    inv[a] = d != 0.0 ? 1.0 / d : 0.0;
+    if (d == 0.0) {
+      if (qo[a] < 0.0 || qo[a] > uDomainMax[a]) return;
+      continue;
+    }
+    float tn = (0.0 - qo[a]) * inv[a], tf = (uDomainMax[a] - qo[a]) * inv[a];
+    t0 = max(t0, min(tn, tf));
+    t1 = min(t1, max(tn, tf));
+  }
+  if (!(t1 >= t0)) return;
+
+  // The chord is cut into n equal steps of delta <= uStepMm, sampled at their midpoints (the
+  // CPU reference's rule); fine cell k belongs to the leaf holding its midpoint.
+  float steps = max(1.0, ceil((t1 - t0) / uStepMm));
+  float delta = (t1 - t0) / steps;
+  int n = int(steps);
+
+#ifdef MODE_DVR
+  float transmittance = 1.0;
+  float firstDepth = kInfinity;
+  vec3 accum = vec3(0.0);
+#endif
+#ifdef MODE_MIP
+  float best = -kInfinity;
+  float bestT = t0;
+  bool started = false;
+#endif
+  bool done = false;
+  float tLast = t0;
+
+  uint entry = 0u;
+  int level = 0;
+  vec3 boxMin = vec3(0.0);
+  float dim = 1.0;
+  float t = t0;
+  for (int iteration = 0; iteration < uMaxIterations && t < t1 && !done; ++iteration) {
+    // Down traversal by box subdivision: the child whose slab holds t on every axis.
+    uint w = nodes[entry];
+    while ((w >> 30) == kInner) {
+      dim *= 0.5;
+      uint child = 0u;
+      for (int a = 0; a < 3; ++a) {
+        float mid = boxMin[a] + dim;
+        float tm = (mid - qo[a]) * inv[a];
+        bool upper = dq[a] > 0.0 ? t >= tm : (dq[a] < 0.0 ? t < tm : qo[a] >= mid);
+        if (upper) {
+          boxMin[a] = mid;
+          child |= 1u << a;
+        }
+      }
+      entry = (w & 0x3FFFFFFFu) + child;
+      w = nodes[entry];
+      ++level;
+    }
+    // Exit: the nearest far plane, ties to the lowest axis.
+    float tExit = kInfinity;
+    int face = -1;
+    for (int a = 0; a < 3; ++a) {
+      if (dq[a] == 0.0) continue;
+      float tf = ((dq[a] > 0.0 ? boxMin[a] + dim : boxMin[a]) - qo[a]) * inv[a];
+      if (tf < tExit) {
+        tExit = tf;
+        face = 2 * a + (dq[a] > 0.0 ? 1 : 0);
+      }
+    }
+    uint record = (w & 0x3FFFFFFFu) * 8u;
+    float tEnd = min(tExit, t1);
+#ifdef STATS
+    if (tEnd > t) stats.z += 1.0;
+#endif
+    if ((w >> 30) == kDataLeaf && tEnd > t) {
+#ifdef STATS
+      stats.w += 1.0;
+      touched[record / 8u] = 1u;
+#endif
+      uint slot = leaves[record];
+      int levelsUp = uLeafLevel - level;
+      float levelScale = exp2(float(levelsUp));
+      // texel(t) = p0 + t * p1 inside this leaf's slot.
+      float texelsPerQ = float(BRICK_SIZE) / dim;
+      vec3 p0 = slotOrigin(slot) + float(BORDER) + (qo - boxMin) * texelsPerQ;
+      vec3 p1 = dq * texelsPerQ;
+      int k0 = clamp(int(ceil((t - t0) / delta - 0.5)), 0, n);
+      int k1 = clamp(int(ceil((tEnd - t0) / delta - 0.5)), 0, n);
+      int m = 1 << levelsUp;  // fine steps per sample at this leaf's level (§5.3)
+
+#ifdef MODE_DVR
+      int k = k0;
+      while (k < k1) {
+        // The cheap loop: one fetch and one classification per sample until a sample has
+        // opacity (shading work stays out of it: llvmpipe runs pixels in lock-step).
+        vec4 c = vec4(0.0);
+        float g = 1.0, ts = 0.0;
+        vec3 texel = vec3(0.0);
+        float value = 0.0;
+        for (;;) {
+          g = float(min(m, k1 - k));
+          ts = t0 + (float(k) + 0.5 * g) * delta;
+          texel = p0 + ts * p1;
+          value = valueAt(texel);
+          c = texture(uTf, value * uTfMap.x + uTfMap.y);
+#ifdef STATS
+          stats.x += 1.0;
+#endif
+          if (c.a > 0.0) break;
+          k += m;
+          if (k >= k1) break;
+        }
+        if (!(c.a > 0.0)) break;
+        float extinction = c.a;  // -ln(1 - alpha) per unit distance
+#ifdef NEEDS_GRADIENT
+        vec3 grad = gradientAt(texel, levelScale);
+        float magnitude = length(grad);
+        float factor = 1.0;
+#ifdef GRADIENT_OPACITY
+        factor *= interpolatePoints(uColorPoints + uOpacityPoints, uGradientPoints, magnitude, 1);
+#endif
+#ifdef BOUNDARY_ENHANCEMENT
+        factor *= uBoundary.x + uBoundary.y * pow(magnitude, uBoundary.z);
+#endif
+#ifdef SILHOUETTE_ENHANCEMENT
+        float facing = magnitude > 0.0 ? abs(dot(grad / magnitude, dir)) : 0.0;
+        factor *= uSilhouette.x + uSilhouette.y * pow(1.0 - facing, uSilhouette.z);
+#endif
+        if (factor != 1.0) {
+          float alpha = clamp((1.0 - exp(-extinction)) * factor, 0.0, 1.0);
+          extinction = alpha < 1.0 ? -log(1.0 - alpha) : 1e4;
+        }
+#ifdef SHADING
+        c.rgb = phong(c.rgb, grad, dir);
+#endif
+#endif
+        float alphaStep = 1.0 - exp(-extinction * g * delta * uInvUnitDistance);
+        if (alphaStep > 0.0) {
+#ifdef STATS
+          stats.y += 1.0;
+#endif
+          if (firstDepth == kInfinity) firstDepth = ts;
+          accum += (transmittance * alphaStep) * c.rgb;
+          transmittance *= 1.0 - alphaStep;
+          tLast = ts;
+          if (1.0 - transmittance >= uEarlyTermination) {
+            done = true;
+            break;
+          }
+        }
+        k += m;
+      }
+#endif  // MODE_DVR
+
+#ifdef MODE_ISO
+      // Brackets between consecutive step boundaries t0 + k delta (k0 .. k1, every m).
+      if (k1 > k0) {
+        float ta = t0 + float(k0) * delta;
+        float fa = valueAt(p0 + ta * p1) - uIsoValue;
+#ifdef STATS
+        stats.x += 1.0;
+#endif
+        float hit = fa == 0.0 ? ta : -1.0;
+        for (int k = k0; k < k1 && hit < 0.0; k += m) {
+          int kb = min(k + m, k1);
+          float tb = kb == n ? t1 : t0 + float(kb) * delta;
+          float fb = valueAt(p0 + tb * p1) - uIsoValue;
+#ifdef STATS
+          stats.x += 1.0;
+#endif
+          if (fb == 0.0) {
+            hit = tb;
+          } else if ((fa < 0.0) != (fb < 0.0)) {
+            float lo = ta, hi = tb, flo = fa, fhi = fb;
+            for (int i = 0; i < 40; ++i) {
+              float mid = 0.5 * (lo + hi);
+              if (mid <= lo || mid >= hi) break;
+              float fm = valueAt(p0 + mid * p1) - uIsoValue;
+#ifdef STATS
+              stats.x += 1.0;
+#endif
+              if (fm == 0.0) {
+                lo = hi = mid;
+                break;
+              }
+              if ((fm < 0.0) == (flo < 0.0)) {
+                lo = mid;
+                flo = fm;
+              } else {
+                hi = mid;
+                fhi = fm;
+              }
+            }
+            hit = lo == hi ? lo : lo + (hi - lo) * (flo / (flo - fhi));
+          }
+          ta = tb;
+          fa = fb;
+        }
+        if (hit >= 0.0) {
+          vec4 c = classifyExact(uIsoValue);
+#ifdef SHADING
+          c.rgb = phong(c.rgb, gradientAt(p0 + hit * p1, levelScale), dir);
+#endif
+          outColor = vec4(c.rgb, 1.0);
+          outAux = vec4(hit, uIsoValue, 0.0, 0.0);
+#ifdef STATS
+          stats.y += 1.0;
+#endif
+          tLast = hit;
+          done = true;
+        }
+      }
+#endif  // MODE_ISO
+
+#ifdef MODE_MIP
+      // The exact maximum of the trilinear interpolant: the segment is cut where it crosses a
+      // texel-centre plane; on each piece the interpolant is a cubic in t, evaluated from the
+      // cell's 8 texels (no filtering hardware involved) at the ends and its critical points.
+      float leafMax = uintBitsToFloat(leaves[record + 7u]);
+      if (!started || leafMax > best * uValueScale + uValueOffset) {
+        float ta = t;
+        vec3 u0 = p0 - 0.5;  // cell space: texel centres at integers
+        vec3 invP = vec3(p1.x != 0.0 ? 1.0 / p1.x : 0.0, p1.y != 0.0 ? 1.0 / p1.y : 0.0,
+                         p1.z != 0.0 ? 1.0 / p1.z : 0.0);
+        // The cell holding the segment's start, entered in the ray's direction; then a 3D DDA
+        // from cell to cell (planes' t recomputed from the cell each time: no drift).
+        vec3 ua = u0 + ta * p1;
+        vec3 cell = floor(ua);
+        for (int a = 0; a < 3; ++a) {
+          if (p1[a] < 0.0 && ua[a] == cell[a]) cell[a] -= 1.0;
+        }
+        vec3 slotLo = slotOrigin(slot);
+        vec3 slotHi = slotLo + float(BRICK_SIZE + 2 * BORDER - 2);
+        for (int piece = 0; piece < 4 * (BRICK_SIZE + 2); ++piece) {
+          vec3 tNext = vec3(kInfinity);
+          for (int a = 0; a < 3; ++a) {
+            if (p1[a] != 0.0) tNext[a] = ((p1[a] > 0.0 ? cell[a] + 1.0 : cell[a]) - u0[a]) * invP[a];
+          }
+          float tb = min(min(tNext.x, tNext.y), min(tNext.z, tEnd));
+          if (tb > ta) {
+            vec3 c0 = clamp(cell, slotLo, slotHi);
+            ivec3 ic = ivec3(c0);
+            vec4 lo = vec4(texelFetch(uPool, ic, 0).r, texelFetch(uPool, ic + ivec3(1, 0, 0), 0).r,
+                           texelFetch(uPool, ic + ivec3(0, 1, 0), 0).r,
+                           texelFetch(uPool, ic + ivec3(1, 1, 0), 0).r);
+            vec4 hi = vec4(texelFetch(uPool, ic + ivec3(0, 0, 1), 0).r,
+                           texelFetch(uPool, ic + ivec3(1, 0, 1), 0).r,
+                           texelFetch(uPool, ic + ivec3(0, 1, 1), 0).r,
+                           texelFetch(uPool, ic + ivec3(1, 1, 1), 0).r);
+#ifdef STATS
+            stats.x += 1.0;
+#endif
+            float h = tb - ta;
+            float v0 = trilinearCell(u0 + ta * p1 - c0, lo, hi);
+            float v1 = trilinearCell(u0 + (ta + h / 3.0) * p1 - c0, lo, hi);
+            float v2 = trilinearCell(u0 + (ta + 2.0 * h / 3.0) * p1 - c0, lo, hi);
+            float v3 = trilinearCell(u0 + tb * p1 - c0, lo, hi);
+            if (!started) {
+              best = v0;
+              bestT = ta;
+              started = true;
+            }
+            float d1 = v1 - v0, d2 = v2 - 2.0 * v1 + v0, d3 = v3 - 3.0 * v2 + 3.0 * v1 - v0;
+            float qa = 0.5 * d3, qb = d2 - d3, qc = d1 - 0.5 * d2 + d3 / 3.0;
+            float scale = abs(qa) + abs(qb) + abs(qc);
+            float r0 = -1.0, r1 = -1.0;
+            if (abs(qa) > 1e-6 * scale) {
+              float disc = qb * qb - 4.0 * qa * qc;
+              if (disc >= 0.0) {
+                float q = -0.5 * (qb + (qb >= 0.0 ? sqrt(disc) : -sqrt(disc)));
+                r0 = q / qa;
+                if (q != 0.0) r1 = qc / q;
+              }
+            } else if (abs(qb) > 1e-6 * scale) {
+              r0 = -qc / qb;
+            }
+            if (r0 > 0.0 && r0 < 3.0) {
+              float tr = ta + r0 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
+              if (vr > best) { best = vr; bestT = tr; }
+            }
+            if (r1 > 0.0 && r1 < 3.0) {
+              float tr = ta + r1 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
+              if (vr > best) { best = vr; bestT = tr; }
+            }
+            if (v3 > best) { best = v3; bestT = tb; }
+            ta = tb;
+          }
+          if (tb >= tEnd) break;
+          int a = tNext.x <= tNext.y ? (tNext.x <= tNext.z ? 0 : 2) : (tNext.y <= tNext.z ? 1 : 2);
+          cell[a] += p1[a] > 0.0 ? 1.0 : -1.0;
+        }
+      }
+#endif  // MODE_MIP
+    }
+    if (face < 0 || !(tExit < t1) || done) break;
+    uint neighbour = leaves[record + 1u + uint(face)];
+    if (neighbour == kNull) break;
+    // Neighbour jump: shift the box across the exit face, snap it to the neighbour's level.
+    boxMin[face >> 1] += (face & 1) != 0 ? dim : -dim;
+    level = int(neighbour >> 27);
+    dim = exp2(-float(level));
+    boxMin = floor(boxMin / dim) * dim;
+    entry = neighbour & 0x07FFFFFFu;
+    t = tExit;
+  }
+
+#ifdef MODE_DVR
+  outColor = vec4(accum, 1.0 - transmittance);
+  outAux = vec4(firstDepth, 0.0, 0.0, 0.0);
+#endif
+#ifdef MODE_MIP
+  if (started) {
+    vec4 c = classifyExact(best * uValueScale + uValueOffset);
+    outColor = vec4(c.rgb * c.a, c.a);
+    outAux = vec4(bestT, best * uValueScale + uValueOffset, 0.0, 0.0);
+    tLast = bestT;
+    done = c.a > 0.0;
+  }
+#endif
+  if (done) {
+    float z = max(tLast * dot(dir, uForward), uNear);
+#ifdef PERSPECTIVE
+    gl_FragDepth = clamp((1.0 / z - 1.0 / uNear) / (1.0 / uFar - 1.0 / uNear), 0.0, 1.0);
+#else
+    gl_FragDepth = clamp((z - uNear) / (uFar - uNear), 0.0, 1.0);
+#endif
+  }
+#ifdef STATS
+  outStats = stats;
+#endif
+}

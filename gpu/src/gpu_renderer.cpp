@@ -1,0 +1,613 @@
+#include "octoray/gpu/gpu_renderer.h"
+
+#include <epoxy/gl.h>
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include "octoray/dicom/error.h"
+#include "octoray/gpu/gl_program.h"
+#include "octoray/gpu/spatial_index.h"
+
+namespace octoray::gpu {
+namespace {
+
+constexpr int kTfTableSize = 8192;
+constexpr double kDegrees = 3.14159265358979323846 / 180.0;
+constexpr std::size_t kUploadBatch = 256;
+
+double millisecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+const char* glErrorName(GLenum e) {
+  switch (e) {
+    case GL_INVALID_ENUM: return "GL_INVALID_ENUM";
+    case GL_INVALID_VALUE: return "GL_INVALID_VALUE";
+    case GL_INVALID_OPERATION: return "GL_INVALID_OPERATION";
+    case GL_INVALID_FRAMEBUFFER_OPERATION: return "GL_INVALID_FRAMEBUFFER_OPERATION";
+    case GL_OUT_OF_MEMORY: return "GL_OUT_OF_MEMORY";
+    default: return "GL error";
+  }
+}
+
+void throwOnGlError(const char* where) {
+  std::string errors;
+  for (GLenum e = glGetError(); e != GL_NO_ERROR; e = glGetError()) {
+    errors += errors.empty() ? glErrorName(e) : fmt::format(", {}", glErrorName(e));
+  }
+  if (!errors.empty()) throw Error("", fmt::format("GPU raycaster: {} while {}", errors, where));
+}
+
+// True when the TF's gradient opacity changes nothing (no points, or every point 1).
+bool gradientOpacityIsIdentity(const transfer::TransferFunction& tf) {
+  return std::all_of(tf.gradientOpacity.begin(), tf.gradientOpacity.end(),
+                     [](const transfer::GradientOpacityPoint& p) { return p.alpha == 1.0f; });
+}
+
+void setMat3(GLint location, const std::array<std::array<double, 3>, 3>& rows) {
+  if (location < 0) return;
+  std::array<float, 9> v{};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) v[static_cast<std::size_t>(3 * r + c)] = static_cast<float>(rows[r][c]);
+  glUniformMatrix3fv(location, 1, GL_TRUE, v.data());
+}
+
+}  // namespace
+
+struct GpuRenderer::Impl {
+  const volume::StoreReader& store;
+  RendererConfig config;
+  const volume::OctreeLayout& layout;
+  int edge = 0;
+  bool floatPool = false;
+  bool hasGradientPool = false;
+  std::array<int64_t, 3> slotGrid{1, 1, 1};
+  int64_t capacity = 0;
+  std::size_t slotBytes = 0;
+
+  GlTexture pool{GL_TEXTURE_3D};
+  GlTexture gradientPool{GL_TEXTURE_3D};
+  GlTexture tfTable{GL_TEXTURE_1D};
+  GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer;
+  GlVertexArray vao;
+  GlFramebuffer fbo;
+  std::vector<GlTexture> targets;  // colour, aux, stats, depth
+  int targetWidth = 0, targetHeight = 0;
+
+  struct SlotInfo {
+    int64_t node = -1;
+    uint64_t lastUsed = 0;
+  };
+  std::vector<SlotInfo> slots;
+  std::unordered_map<int64_t, uint32_t> slotOfNode;
+  uint64_t frameNumber = 0;
+
+  std::map<std::string, GlProgram> programs;
+
+  Impl(const volume::StoreReader& s, const RendererConfig& c)
+      : store(s), config(c), layout(s.layout()) {}
+
+  void allocatePool();
+  void ensureTargets(int width, int height);
+  GlProgram& program(const std::vector<std::string>& defines);
+  std::vector<std::string> defines(const transfer::TransferFunction& tf,
+                                   const RaycastOptions& options, Projection projection) const;
+  std::vector<CutLeaf> residentCut(const WorkingSet& ws, FrameStats& stats);
+  void uploadTransferFunction(const transfer::TransferFunction& tf, const RaycastOptions& options,
+                              int counts[3]);
+  double stepMm(const RaycastOptions& options) const;
+};
+
+void GpuRenderer::Impl::allocatePool() {
+  edge = layout.storedEdge();
+  floatPool = store.sampleFormat() == volume::SampleFormat::Float32;
+  hasGradientPool = config.gradientPool && (store.header().flags & volume::kStoreHasGradients);
+  if (config.gradientPool && !hasGradientPool) {
+    throw Error(store.path(), "a gradient pool was asked for but the store has no gradients "
+                              "(import it with --gradients)");
+  }
+  const std::size_t e3 = static_cast<std::size_t>(edge) * edge * edge;
+  slotBytes = e3 * (floatPool ? 4 : 2) + (hasGradientPool ? e3 * 4 : 0);
+  GLint max3d = 0;
+  glGetIntegerv(GL_MAX_3D_TEXTURE_SIZE, &max3d);
+  const int64_t perAxis = std::max<int64_t>(1, max3d / edge);
+  int64_t want = std::max<int64_t>(1, static_cast<int64_t>(config.poolBytes / slotBytes));
+  want = std::min<int64_t>(want, static_cast<int64_t>(store.nodes().size()));
+  want = std::min(want, perAxis * perAxis * perAxis);
+  slotGrid[0] = std::min(want, perAxis);
+  slotGrid[1] = std::min((want + slotGrid[0] - 1) / slotGrid[0], perAxis);
+  slotGrid[2] = std::max<int64_t>(1, want / (slotGrid[0] * slotGrid[1]));
+  if (slotGrid[0] * slotGrid[1] * slotGrid[2] < want && slotGrid[2] < perAxis &&
+      slotGrid[0] * slotGrid[1] * (slotGrid[2] + 1) * static_cast<int64_t>(slotBytes) <=
+          static_cast<int64_t>(config.poolBytes)) {
+    ++slotGrid[2];
+  }
+  capacity = slotGrid[0] * slotGrid[1] * slotGrid[2];
+  slots.assign(static_cast<std::size_t>(capacity), {});
+
+  const auto w = static_cast<GLsizei>(slotGrid[0] * edge), h = static_cast<GLsizei>(slotGrid[1] * edge),
+             d = static_cast<GLsizei>(slotGrid[2] * edge);
+  glTextureStorage3D(pool.id(), 1, floatPool ? GL_R32F : GL_R16, w, h, d);
+  for (GLuint tex : {pool.id(), gradientPool.id()}) {
+    glTextureParameteri(tex, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTextureParameteri(tex, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    glTextureParameteri(tex, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTextureParameteri(tex, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    glTextureParameteri(tex, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
+  }
+  if (hasGradientPool) glTextureStorage3D(gradientPool.id(), 1, GL_RGBA8, w, h, d);
+  glTextureStorage1D(tfTable.id(), 1, GL_RGBA32F, kTfTableSize);
+  glTextureParameteri(tfTable.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTextureParameteri(tfTable.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTextureParameteri(tfTable.id(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  throwOnGlError(fmt::format("allocating a {}x{}x{} brick pool", w, h, d).c_str());
+}
+
+void GpuRenderer::Impl::ensureTargets(int width, int height) {
+  if (width == targetWidth && height == targetHeight && !targets.empty()) return;
+  targets.clear();
+  const GLenum formats[4] = {GL_RGBA32F, GL_RGBA32F, GL_RGBA32F, GL_DEPTH_COMPONENT32F};
+  for (int i = 0; i < 4; ++i) {
+    targets.emplace_back(GL_TEXTURE_2D);
+    glTextureStorage2D(targets.back().id(), 1, formats[i], width, height);
+  }
+  for (int i = 0; i < 3; ++i) {
+    glNamedFramebufferTexture(fbo.id(), static_cast<GLenum>(GL_COLOR_ATTACHMENT0 + i), targets[static_cast<std::size_t>(i)].id(), 0);
+  }
+  glNamedFramebufferTexture(fbo.id(), GL_DEPTH_ATTACHMENT, targets[3].id(), 0);
+  const GLenum status = glCheckNamedFramebufferStatus(fbo.id(), GL_FRAMEBUFFER);
+  if (status != GL_FRAMEBUFFER_COMPLETE) {
+    throw Error("", fmt::format("GPU raycaster: framebuffer {}x{} incomplete (0x{:x})", width, height, status));
+  }
+  targetWidth = width;
+  targetHeight = height;
+  throwOnGlError("allocating render targets");
+}
+
+GlProgram& GpuRenderer::Impl::program(const std::vector<std::string>& defs) {
+  std::string key;
+  for (const std::string& d : defs) key += d + ";";
+  auto it = programs.find(key);
+  if (it == programs.end()) {
+    it = programs.emplace(key, GlProgram::build("fullscreen.vert.glsl", "raycast.frag.glsl", defs)).first;
+  }
+  return it->second;
+}
+
+std::vector<std::string> GpuRenderer::Impl::defines(const transfer::TransferFunction& tf,
+                                                    const RaycastOptions& o,
+                                                    Projection projection) const {
+  std::vector<std::string> d;
+  const bool shade = o.shading == RaycastOptions::Shading::On ||
+                     (o.shading == RaycastOptions::Shading::FromTransferFunction && tf.material.shade);
+  switch (o.mode) {
+    case RaycastMode::Dvr: {
+      d.emplace_back("MODE_DVR");
+      if (shade) d.emplace_back("SHADING");
+      const bool gradientOpacity = o.gradientOpacity && !gradientOpacityIsIdentity(tf);
+      if (gradientOpacity) d.emplace_back("GRADIENT_OPACITY");
+      if (o.boundary.enabled) d.emplace_back("BOUNDARY_ENHANCEMENT");
+      if (o.silhouette.enabled) d.emplace_back("SILHOUETTE_ENHANCEMENT");
+      if (hasGradientPool && (shade || gradientOpacity || o.boundary.enabled || o.silhouette.enabled)) {
+        d.emplace_back("GRADIENT_POOL");
+      }
+      break;
+    }
+    case RaycastMode::Iso:
+      d.emplace_back("MODE_ISO");
+      if (shade) d.emplace_back("SHADING");
+      if (hasGradientPool && shade) d.emplace_back("GRADIENT_POOL");
+      break;
+    case RaycastMode::Mip:
+      d.emplace_back("MODE_MIP");
+      break;
+  }
+  d.push_back(fmt::format("BRICK_SIZE {}", layout.brickSize()));
+  d.push_back(fmt::format("BORDER {}", layout.border()));
+  // Central differences of +-1 voxel need two border samples; with one, +-0.5 voxel stays
+  // inside the brick.
+  d.push_back(layout.border() >= 2 ? "GRADIENT_DELTA 1.0" : "GRADIENT_DELTA 0.5");
+  if (o.stats) d.emplace_back("STATS");
+  if (projection == Projection::Perspective) d.emplace_back("PERSPECTIVE");
+  return d;
+}
+
+double GpuRenderer::Impl::stepMm(const RaycastOptions& o) const {
+  if (o.stepMm > 0) return o.stepMm;
+  const Mat4 m = store.patientFromIndex();
+  double smallest = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a) smallest = std::min(smallest, length(m.column(a)));
+  return 0.25 * smallest;
+}
+
+// Gives every data node of the working set a pool slot, reading and uploading the missing
+// bricks; returns the cut with slots.
+std::vector<CutLeaf> GpuRenderer::Impl::residentCut(const WorkingSet& ws, FrameStats& stats) {
+  ++frameNumber;
+  std::vector<CutLeaf> cut;
+  cut.reserve(ws.dataNodes.size());
+  std::vector<std::pair<int64_t, uint32_t>> missing;  // node, slot
+  // Mark the resident ones first so that eviction never takes a slot this frame needs.
+  std::vector<int64_t> ids;
+  ids.reserve(ws.dataNodes.size());
+  for (const volume::NodeKey& key : ws.dataNodes) {
+    const int64_t id = layout.nodeId(key);
+    ids.push_back(id);
+    if (auto it = slotOfNode.find(id); it != slotOfNode.end()) slots[it->second].lastUsed = frameNumber;
+  }
+  // Free slots: never used, then least recently used.
+  std::vector<uint32_t> freeSlots;
+  for (uint32_t s = 0; s < slots.size(); ++s) {
+    if (slots[s].lastUsed != frameNumber) freeSlots.push_back(s);
+  }
+  std::sort(freeSlots.begin(), freeSlots.end(), [&](uint32_t a, uint32_t b) {
+    return slots[a].lastUsed > slots[b].lastUsed;  // pop_back takes the oldest
+  });
+  for (int64_t id : ids) {
+    auto it = slotOfNode.find(id);
+    if (it == slotOfNode.end()) {
+      if (freeSlots.empty()) {
+        throw Error(store.path(), fmt::format("GPU raycaster: the working set needs more than the "
+                                              "pool's {} slots", capacity));
+      }
+      const uint32_t s = freeSlots.back();
+      freeSlots.pop_back();
+      if (slots[s].node >= 0) slotOfNode.erase(slots[s].node);
+      slots[s] = {id, frameNumber};
+      it = slotOfNode.emplace(id, s).first;
+      missing.emplace_back(id, s);
+    }
+    CutLeaf leaf;
+    leaf.key = layout.nodeKey(id);
+    leaf.slot = it->second;
+    leaf.maxValue = store.node(id).maxValue;
+    cut.push_back(leaf);
+  }
+
+  const auto start = std::chrono::steady_clock::now();
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  for (std::size_t first = 0; first < missing.size(); first += kUploadBatch) {
+    const std::size_t count = std::min(kUploadBatch, missing.size() - first);
+    std::vector<volume::Brick> bricks(count);
+    std::exception_ptr failure;
+    tbb::parallel_for(std::size_t{0}, count, [&](std::size_t i) {
+      try {
+        bricks[i] = store.readBrick(missing[first + i].first);
+      } catch (...) {
+        failure = std::current_exception();
+      }
+    });
+    if (failure) {
+      // The slots taken for unread bricks hold nothing valid: forget them.
+      for (std::size_t i = first; i < missing.size(); ++i) {
+        slotOfNode.erase(missing[i].first);
+        slots[missing[i].second] = {};
+      }
+      std::rethrow_exception(failure);
+    }
+    for (std::size_t i = 0; i < count; ++i) {
+      const uint32_t s = missing[first + i].second;
+      const auto x = static_cast<GLint>(s % slotGrid[0] * edge);
+      const auto y = static_cast<GLint>(s / slotGrid[0] % slotGrid[1] * edge);
+      const auto z = static_cast<GLint>(s / (slotGrid[0] * slotGrid[1]) * edge);
+      const volume::Brick& b = bricks[i];
+      if (floatPool) {
+        glTextureSubImage3D(pool.id(), 0, x, y, z, edge, edge, edge, GL_RED, GL_FLOAT, b.f32.data());
+      } else {
+        glTextureSubImage3D(pool.id(), 0, x, y, z, edge, edge, edge, GL_RED, GL_UNSIGNED_SHORT,
+                            b.u16.data());
+      }
+      if (hasGradientPool) {
+        glTextureSubImage3D(gradientPool.id(), 0, x, y, z, edge, edge, edge, GL_RGBA,
+                            GL_UNSIGNED_BYTE, b.gradients.data());
+      }
+    }
+  }
+  throwOnGlError("uploading bricks");
+  stats.uploadMs = millisecondsSince(start);
+  stats.bricksUploaded = static_cast<int64_t>(missing.size());
+  return cut;
+}
+
+void GpuRenderer::Impl::uploadTransferFunction(const transfer::TransferFunction& tf,
+                                               const RaycastOptions& options, int counts[3]) {
+  // The table spans the store's value range (the root's [min, max]).
+  const volume::NodeRecord& root = store.node(0);
+  const double lo = root.minValue;
+  const double hi = root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0;
+  std::vector<float> table(static_cast<std::size_t>(kTfTableSize) * 4);
+  for (int i = 0; i < kTfTableSize; ++i) {
+    const double v = lo + (hi - lo) * i / (kTfTableSize - 1);
+    const std::array<float, 4> c = tf.evaluate(v);
+    const double alpha = std::clamp<double>(c[3], 0.0, 1.0);
+    float* e = &table[static_cast<std::size_t>(i) * 4];
+    e[0] = c[0];
+    e[1] = c[1];
+    e[2] = c[2];
+    e[3] = alpha < 1.0 ? static_cast<float>(-std::log1p(-alpha)) : 1e4f;
+  }
+  glTextureSubImage1D(tfTable.id(), 0, 0, kTfTableSize, GL_RGBA, GL_FLOAT, table.data());
+
+  std::vector<float> points;
+  for (const transfer::ColorPoint& p : tf.color) {
+    points.insert(points.end(), {static_cast<float>(p.value), p.r, p.g, p.b});
+  }
+  for (const transfer::OpacityPoint& p : tf.opacity) {
+    points.insert(points.end(), {static_cast<float>(p.value), p.alpha, 0, 0});
+  }
+  const bool gradient = options.gradientOpacity;
+  if (gradient) {
+    for (const transfer::GradientOpacityPoint& p : tf.gradientOpacity) {
+      points.insert(points.end(), {static_cast<float>(p.magnitude), p.alpha, 0, 0});
+    }
+  }
+  counts[0] = static_cast<int>(tf.color.size());
+  counts[1] = static_cast<int>(tf.opacity.size());
+  counts[2] = gradient ? static_cast<int>(tf.gradientOpacity.size()) : 0;
+  if (points.empty()) points.assign(4, 0.0f);
+  glNamedBufferData(tfPointBuffer.id(), static_cast<GLsizeiptr>(points.size() * sizeof(float)),
+                    points.data(), GL_DYNAMIC_DRAW);
+}
+
+GpuRenderer::GpuRenderer(const volume::StoreReader& store, const RendererConfig& config)
+    : impl_(std::make_unique<Impl>(store, config)) {
+  impl_->allocatePool();
+}
+
+GpuRenderer::~GpuRenderer() = default;
+
+int64_t GpuRenderer::poolSlots() const { return impl_->capacity; }
+
+double GpuRenderer::defaultStepMm() const { return impl_->stepMm({}); }
+
+std::vector<std::string> GpuRenderer::variantDefines(const transfer::TransferFunction& tf,
+                                                     const RaycastOptions& options,
+                                                     Projection projection) const {
+  return impl_->defines(tf, options, projection);
+}
+
+const std::string& GpuRenderer::variantSource(const transfer::TransferFunction& tf,
+                                              const RaycastOptions& options,
+                                              Projection projection) {
+  return impl_->program(impl_->defines(tf, options, projection)).fragmentSourceWithDefines();
+}
+
+Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction& tf,
+                          const RaycastOptions& options) {
+  Impl& im = *impl_;
+  camera.validate();
+  if (!(options.earlyTermination > 0 && options.earlyTermination <= 1)) {
+    throw Error("", fmt::format("early termination {} must be in (0, 1]", options.earlyTermination));
+  }
+  if (!(options.stepMm >= 0 && std::isfinite(options.stepMm))) {
+    throw Error("", fmt::format("step {} mm must be positive (or 0 for the default)", options.stepMm));
+  }
+  if (options.mode == RaycastMode::Iso && !std::isfinite(options.isoValue)) {
+    throw Error("", "the isovalue must be finite");
+  }
+  if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
+    throw Error("", fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
+  }
+  if (tf.color.empty() || tf.opacity.empty()) {
+    throw Error("", fmt::format("transfer function \"{}\" has no colour or no opacity points", tf.name));
+  }
+  for (const Enhancement* e : {&options.boundary, &options.silhouette}) {
+    if (e->enabled && !(std::isfinite(e->kC) && std::isfinite(e->kS) && std::isfinite(e->kE) && e->kE >= 0)) {
+      throw Error("", "enhancement: kC, kS must be finite and kE finite and >= 0");
+    }
+  }
+
+  Frame frame;
+  FrameStats& stats = frame.stats;
+  const auto selectStart = std::chrono::steady_clock::now();
+  WorkingSetOptions wso;
+  wso.mode = options.mode;
+  wso.lodPixels = options.lodPixels;
+  wso.isoValue = options.isoValue;
+  wso.slotCapacity = im.capacity;
+  const WorkingSet ws = selectWorkingSet(im.store, camera, tf, wso);
+  stats.selectMs = millisecondsSince(selectStart);
+  std::vector<CutLeaf> cut = im.residentCut(ws, stats);
+  const auto indexStart = std::chrono::steady_clock::now();
+  const SpatialIndex index = SpatialIndex::build(im.layout, cut);
+  stats.selectMs += millisecondsSince(indexStart);
+  stats.workingSetBricks = static_cast<int64_t>(ws.dataNodes.size());
+  stats.emptyNodes = ws.emptyNodes;
+  stats.poolSlots = im.capacity;
+  stats.poolSlotsUsed = static_cast<int64_t>(im.slotOfNode.size());
+  stats.poolBytes = static_cast<std::size_t>(im.capacity) * im.slotBytes;
+  stats.poolBytesUsed = static_cast<std::size_t>(stats.workingSetBricks) * im.slotBytes;
+
+  glNamedBufferData(im.nodeBuffer.id(), static_cast<GLsizeiptr>(index.nodes.size() * 4),
+                    index.nodes.data(), GL_DYNAMIC_DRAW);
+  glNamedBufferData(im.leafBuffer.id(), static_cast<GLsizeiptr>(index.leaves.size() * 4),
+                    index.leaves.data(), GL_DYNAMIC_DRAW);
+  const std::size_t leafRecords = index.leaves.size() / kLeafRecordUints;
+  if (options.stats) {
+    std::vector<uint32_t> zeros(leafRecords, 0);
+    glNamedBufferData(im.touchedBuffer.id(), static_cast<GLsizeiptr>(zeros.size() * 4), zeros.data(),
+                      GL_DYNAMIC_READ);
+  }
+  int counts[3];
+  im.uploadTransferFunction(tf, options, counts);
+
+  const int width = camera.width, height = camera.height;
+  im.ensureTargets(width, height);
+  GlProgram& prog = im.program(im.defines(tf, options, camera.projection));
+  glUseProgram(prog.id());
+
+  // Camera frame (Camera::ray).
+  const Vec3 forward = normalize(camera.target - camera.eye);
+  const Vec3 right = normalize(cross(forward, camera.up));
+  const Vec3 up = cross(right, forward);
+  const double aspect = static_cast<double>(width) / height;
+  const double halfY = camera.projection == Projection::Perspective
+                           ? std::tan(0.5 * camera.fovYDegrees * kDegrees)
+                           : 0.5 * camera.orthoHeightMm;
+  const auto u3 = [&](const char* name, Vec3 v) {
+    glUniform3f(prog.uniform(name), static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z));
+  };
+  u3("uEye", camera.eye);
+  u3("uForward", forward);
+  u3("uRight", right);
+  u3("uUp", up);
+  glUniform2f(prog.uniform("uHalfExtent"), static_cast<float>(halfY * aspect), static_cast<float>(halfY));
+  glUniform2f(prog.uniform("uViewport"), static_cast<float>(width), static_cast<float>(height));
+
+  // Octree space: q = (indexFromPatient(p) + 0.5) / S.
+  const Mat4 patientFromIndex = im.store.patientFromIndex();
+  const Mat4 indexFromPatient = patientFromIndex.inverseAffine();
+  const double cube = static_cast<double>(im.layout.brickSize()) *
+                      static_cast<double>(im.layout.levelScale(0));
+  std::array<std::array<double, 3>, 3> qFromPatient{}, normalFromIndex{};
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      qFromPatient[r][c] = indexFromPatient.m[r][c] / cube;
+      normalFromIndex[r][c] = indexFromPatient.m[c][r];
+    }
+  }
+  setMat3(prog.uniform("uQFromPatient"), qFromPatient);
+  setMat3(prog.uniform("uNormalFromIndex"), normalFromIndex);
+  u3("uQOffset", {(indexFromPatient.m[0][3] + 0.5) / cube, (indexFromPatient.m[1][3] + 0.5) / cube,
+                  (indexFromPatient.m[2][3] + 0.5) / cube});
+  const volume::Index3& dims = im.layout.levelDims(im.layout.leafLevel());
+  u3("uDomainMax", {static_cast<double>(dims[0]) / cube, static_cast<double>(dims[1]) / cube,
+                    static_cast<double>(dims[2]) / cube});
+  glUniform1i(prog.uniform("uLeafLevel"), im.layout.leafLevel());
+  glUniform1i(prog.uniform("uMaxIterations"), static_cast<GLint>(3 * (leafRecords + 2)));
+  glUniform1f(prog.uniform("uStepMm"), static_cast<float>(im.stepMm(options)));
+  glUniform1f(prog.uniform("uInvUnitDistance"), static_cast<float>(1.0 / tf.unitDistanceMm));
+  glUniform1f(prog.uniform("uEarlyTermination"), static_cast<float>(options.earlyTermination));
+
+  // Depth mapping for gl_FragDepth: the domain's extent along the view axis.
+  double zNear = std::numeric_limits<double>::infinity(), zFar = 0;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 p = patientFromIndex.transformPoint({(c & 1) ? dims[0] - 0.5 : -0.5,
+                                                    (c & 2) ? dims[1] - 0.5 : -0.5,
+                                                    (c & 4) ? dims[2] - 0.5 : -0.5});
+    const double z = dot(p - camera.eye, forward);
+    zNear = std::min(zNear, z);
+    zFar = std::max(zFar, z);
+  }
+  zFar = std::max(zFar, 1e-3) + 1.0;
+  zNear = std::clamp(zNear - 1.0, 1e-3 * zFar, zFar * 0.5);
+  glUniform1f(prog.uniform("uNear"), static_cast<float>(zNear));
+  glUniform1f(prog.uniform("uFar"), static_cast<float>(zFar));
+
+  const double s = im.floatPool ? 1.0 : 65535.0 * im.store.header().valueScale;
+  glUniform1f(prog.uniform("uValueScale"), static_cast<float>(s));
+  glUniform1f(prog.uniform("uValueOffset"),
+              static_cast<float>(im.floatPool ? 0.0 : im.store.header().valueOffset));
+  const volume::NodeRecord& root = im.store.node(0);
+  const double lo = root.minValue, hi = root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0;
+  const double n = kTfTableSize;
+  glUniform2f(prog.uniform("uTfMap"), static_cast<float>((n - 1) / ((hi - lo) * n)),
+              static_cast<float>((-lo * (n - 1) / (hi - lo) + 0.5) / n));
+  glUniform1i(prog.uniform("uColorPoints"), counts[0]);
+  glUniform1i(prog.uniform("uOpacityPoints"), counts[1]);
+  glUniform1i(prog.uniform("uGradientPoints"), counts[2]);
+  glUniform3f(prog.uniform("uPoolInvSize"), 1.0f / static_cast<float>(im.slotGrid[0] * im.edge),
+              1.0f / static_cast<float>(im.slotGrid[1] * im.edge),
+              1.0f / static_cast<float>(im.slotGrid[2] * im.edge));
+  glUniform2i(prog.uniform("uSlotGrid"), static_cast<GLint>(im.slotGrid[0]),
+              static_cast<GLint>(im.slotGrid[0] * im.slotGrid[1]));
+  const transfer::Material& mat = tf.material;
+  glUniform4f(prog.uniform("uMaterial"), mat.ambient, mat.diffuse, mat.specular, mat.specularPower);
+  glUniform3f(prog.uniform("uBoundary"), static_cast<float>(options.boundary.kC),
+              static_cast<float>(options.boundary.kS), static_cast<float>(options.boundary.kE));
+  glUniform3f(prog.uniform("uSilhouette"), static_cast<float>(options.silhouette.kC),
+              static_cast<float>(options.silhouette.kS), static_cast<float>(options.silhouette.kE));
+  glUniform1f(prog.uniform("uIsoValue"), static_cast<float>(options.isoValue));
+  glUniform1f(prog.uniform("uGradientScale"), im.store.header().gradientScale);
+
+  glBindTextureUnit(0, im.pool.id());
+  glUniform1i(prog.uniform("uPool"), 0);
+  glBindTextureUnit(1, im.tfTable.id());
+  glUniform1i(prog.uniform("uTf"), 1);
+  if (im.hasGradientPool) {
+    glBindTextureUnit(2, im.gradientPool.id());
+    glUniform1i(prog.uniform("uGradientPool"), 2);
+  }
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, im.nodeBuffer.id());
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, im.leafBuffer.id());
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, im.tfPointBuffer.id());
+  if (options.stats) glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, im.touchedBuffer.id());
+
+  glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
+  const GLenum buffers[3] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2};
+  glNamedFramebufferDrawBuffers(im.fbo.id(), options.stats ? 3 : 2, buffers);
+  glViewport(0, 0, width, height);
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_ALWAYS);
+  glDepthMask(GL_TRUE);
+  glBindVertexArray(im.vao.id());
+  throwOnGlError("setting up the raycasting pass");
+
+  glFinish();
+  const auto drawStart = std::chrono::steady_clock::now();
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+  glFinish();
+  stats.drawMs = millisecondsSince(drawStart);
+  throwOnGlError("raycasting");
+
+  // Read back (GL rows run bottom-up; Image row 0 is the top).
+  const std::size_t pixels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  std::vector<float> color(pixels * 4), aux(pixels * 4);
+  glPixelStorei(GL_PACK_ALIGNMENT, 4);
+  glGetTextureImage(im.targets[0].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(color.size() * 4), color.data());
+  glGetTextureImage(im.targets[1].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(aux.size() * 4), aux.data());
+  std::vector<float> counters;
+  if (options.stats) {
+    counters.resize(pixels * 4);
+    glGetTextureImage(im.targets[2].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(counters.size() * 4),
+                      counters.data());
+  }
+  frame.image = Image(width, height);
+  const bool wantValue = options.mode != RaycastMode::Dvr;
+  if (wantValue) frame.value.assign(pixels, std::numeric_limits<float>::quiet_NaN());
+  if (options.stats) {
+    frame.leafCounts.assign(pixels, 0);
+    frame.samples.assign(pixels, 0);
+  }
+  double samples = 0, contributing = 0, leavesVisited = 0;
+  for (int y = 0; y < height; ++y) {
+    const std::size_t src = static_cast<std::size_t>(height - 1 - y) * static_cast<std::size_t>(width);
+    const std::size_t dst = static_cast<std::size_t>(y) * static_cast<std::size_t>(width);
+    std::copy_n(&color[src * 4], static_cast<std::size_t>(width) * 4, &frame.image.rgba[dst * 4]);
+    for (int x = 0; x < width; ++x) {
+      const float* a = &aux[(src + static_cast<std::size_t>(x)) * 4];
+      frame.image.depth[dst + static_cast<std::size_t>(x)] = a[0];
+      if (wantValue && std::isfinite(a[0])) frame.value[dst + static_cast<std::size_t>(x)] = a[1];
+      if (options.stats) {
+        const float* c = &counters[(src + static_cast<std::size_t>(x)) * 4];
+        frame.samples[dst + static_cast<std::size_t>(x)] = c[0];
+        frame.leafCounts[dst + static_cast<std::size_t>(x)] = c[2];
+        samples += c[0];
+        contributing += c[1];
+        leavesVisited += c[2];
+        if (c[2] > 0) ++stats.pixelsCovered;
+      }
+    }
+  }
+  if (options.stats) {
+    const double covered = std::max<double>(1.0, static_cast<double>(stats.pixelsCovered));
+    stats.samplesPerPixel = samples / covered;
+    stats.contributingPerPixel = contributing / covered;
+    stats.leavesPerPixel = leavesVisited / covered;
+    std::vector<uint32_t> touched(leafRecords);
+    glGetNamedBufferSubData(im.touchedBuffer.id(), 0, static_cast<GLsizeiptr>(touched.size() * 4), touched.data());
+    stats.bricksTouched = std::count(touched.begin(), touched.end(), 1u);
+  }
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  throwOnGlError("reading the frame back");
+  return frame;
+}
+
+}  // namespace octoray::gpu
