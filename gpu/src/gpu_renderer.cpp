@@ -89,6 +89,16 @@ struct GpuRenderer::Impl {
   uint64_t frameNumber = 0;
 
   std::map<std::string, GlProgram> programs;
+  SpatialIndex index;  // the last frame's
+
+  // The ray parameters in the single precision the shader receives them in.
+  struct RayUniforms {
+    std::array<float, 3> eye{}, forward{}, right{}, up{}, qOffset{}, domainMax{};
+    std::array<float, 2> halfExtent{}, viewport{};
+    std::array<float, 9> qFromPatient{};  // row-major
+    bool perspective = true;
+  };
+  RayUniforms rayUniforms(const Camera& camera) const;
 
   Impl(const volume::StoreReader& s, const RendererConfig& c)
       : store(s), config(c), layout(s.layout()) {}
@@ -103,6 +113,41 @@ struct GpuRenderer::Impl {
                               int counts[3]);
   double stepMm(const RaycastOptions& options) const;
 };
+
+GpuRenderer::Impl::RayUniforms GpuRenderer::Impl::rayUniforms(const Camera& camera) const {
+  RayUniforms u;
+  const auto f3 = [](Vec3 v) {
+    return std::array<float, 3>{static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z)};
+  };
+  // Camera frame (Camera::ray).
+  const Vec3 forward = normalize(camera.target - camera.eye);
+  const Vec3 right = normalize(cross(forward, camera.up));
+  const Vec3 up = cross(right, forward);
+  const double aspect = static_cast<double>(camera.width) / camera.height;
+  u.perspective = camera.projection == Projection::Perspective;
+  const double halfY = u.perspective ? std::tan(0.5 * camera.fovYDegrees * kDegrees)
+                                     : 0.5 * camera.orthoHeightMm;
+  u.eye = f3(camera.eye);
+  u.forward = f3(forward);
+  u.right = f3(right);
+  u.up = f3(up);
+  u.halfExtent = {static_cast<float>(halfY * aspect), static_cast<float>(halfY)};
+  u.viewport = {static_cast<float>(camera.width), static_cast<float>(camera.height)};
+  // Octree space: q = (indexFromPatient(p) + 0.5) / S.
+  const Mat4 indexFromPatient = store.patientFromIndex().inverseAffine();
+  const double cube = static_cast<double>(layout.brickSize()) * static_cast<double>(layout.levelScale(0));
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      u.qFromPatient[static_cast<std::size_t>(3 * r + c)] = static_cast<float>(indexFromPatient.m[r][c] / cube);
+    }
+    u.qOffset[static_cast<std::size_t>(r)] = static_cast<float>((indexFromPatient.m[r][3] + 0.5) / cube);
+  }
+  const volume::Index3& dims = layout.levelDims(layout.leafLevel());
+  for (int a = 0; a < 3; ++a) {
+    u.domainMax[static_cast<std::size_t>(a)] = static_cast<float>(static_cast<double>(dims[a]) / cube);
+  }
+  return u;
+}
 
 void GpuRenderer::Impl::allocatePool() {
   edge = layout.storedEdge();
@@ -362,7 +407,47 @@ GpuRenderer::GpuRenderer(const volume::StoreReader& store, const RendererConfig&
 
 GpuRenderer::~GpuRenderer() = default;
 
+unsigned GpuRenderer::variantProgram(const transfer::TransferFunction& tf,
+                                     const RaycastOptions& options, Projection projection) {
+  return impl_->program(impl_->defines(tf, options, projection)).id();
+}
+
 int64_t GpuRenderer::poolSlots() const { return impl_->capacity; }
+
+const SpatialIndex& GpuRenderer::lastIndex() const { return impl_->index; }
+
+std::array<float, 3> GpuRenderer::domainMax(const Camera& camera) const {
+  return impl_->rayUniforms(camera).domainMax;
+}
+
+OctreeRay GpuRenderer::pixelRay(const Camera& camera, int x, int y) const {
+  // raycast.frag.glsl's first lines, operation for operation (GL rows run bottom-up).
+  const Impl::RayUniforms u = impl_->rayUniforms(camera);
+  const float fc[2] = {static_cast<float>(x) + 0.5f, static_cast<float>(camera.height - 1 - y) + 0.5f};
+  float sv[2];
+  for (int i = 0; i < 2; ++i) sv[i] = (2.0f * fc[i] / u.viewport[i] - 1.0f) * u.halfExtent[i];
+  std::array<float, 3> origin{}, dir{};
+  for (int a = 0; a < 3; ++a) {
+    if (u.perspective) {
+      origin[a] = u.eye[a];
+      dir[a] = u.forward[a] + sv[0] * u.right[a] + sv[1] * u.up[a];
+    } else {
+      origin[a] = u.eye[a] + sv[0] * u.right[a] + sv[1] * u.up[a];
+      dir[a] = u.forward[a];
+    }
+  }
+  if (u.perspective) {
+    const float inv = 1.0f / std::sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (float& d : dir) d *= inv;
+  }
+  OctreeRay ray;
+  for (int r = 0; r < 3; ++r) {
+    const float* m = &u.qFromPatient[static_cast<std::size_t>(3 * r)];
+    ray.origin[r] = m[0] * origin[0] + m[1] * origin[1] + m[2] * origin[2] + u.qOffset[r];
+    ray.direction[r] = m[0] * dir[0] + m[1] * dir[1] + m[2] * dir[2];
+  }
+  return ray;
+}
 
 double GpuRenderer::defaultStepMm() const { return impl_->stepMm({}); }
 
@@ -415,7 +500,8 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
   stats.selectMs = millisecondsSince(selectStart);
   std::vector<CutLeaf> cut = im.residentCut(ws, stats);
   const auto indexStart = std::chrono::steady_clock::now();
-  const SpatialIndex index = SpatialIndex::build(im.layout, cut);
+  im.index = SpatialIndex::build(im.layout, cut);
+  const SpatialIndex& index = im.index;
   stats.selectMs += millisecondsSince(indexStart);
   stats.workingSetBricks = static_cast<int64_t>(ws.dataNodes.size());
   stats.emptyNodes = ws.emptyNodes;
@@ -442,43 +528,28 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
   GlProgram& prog = im.program(im.defines(tf, options, camera.projection));
   glUseProgram(prog.id());
 
-  // Camera frame (Camera::ray).
-  const Vec3 forward = normalize(camera.target - camera.eye);
-  const Vec3 right = normalize(cross(forward, camera.up));
-  const Vec3 up = cross(right, forward);
-  const double aspect = static_cast<double>(width) / height;
-  const double halfY = camera.projection == Projection::Perspective
-                           ? std::tan(0.5 * camera.fovYDegrees * kDegrees)
-                           : 0.5 * camera.orthoHeightMm;
-  const auto u3 = [&](const char* name, Vec3 v) {
-    glUniform3f(prog.uniform(name), static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z));
+  const Impl::RayUniforms ru = im.rayUniforms(camera);
+  const auto u3 = [&](const char* name, const std::array<float, 3>& v) {
+    glUniform3f(prog.uniform(name), v[0], v[1], v[2]);
   };
-  u3("uEye", camera.eye);
-  u3("uForward", forward);
-  u3("uRight", right);
-  u3("uUp", up);
-  glUniform2f(prog.uniform("uHalfExtent"), static_cast<float>(halfY * aspect), static_cast<float>(halfY));
-  glUniform2f(prog.uniform("uViewport"), static_cast<float>(width), static_cast<float>(height));
-
-  // Octree space: q = (indexFromPatient(p) + 0.5) / S.
+  u3("uEye", ru.eye);
+  u3("uForward", ru.forward);
+  u3("uRight", ru.right);
+  u3("uUp", ru.up);
+  glUniform2f(prog.uniform("uHalfExtent"), ru.halfExtent[0], ru.halfExtent[1]);
+  glUniform2f(prog.uniform("uViewport"), ru.viewport[0], ru.viewport[1]);
+  glUniformMatrix3fv(prog.uniform("uQFromPatient"), 1, GL_TRUE, ru.qFromPatient.data());
+  u3("uQOffset", ru.qOffset);
+  u3("uDomainMax", ru.domainMax);
   const Mat4 patientFromIndex = im.store.patientFromIndex();
   const Mat4 indexFromPatient = patientFromIndex.inverseAffine();
-  const double cube = static_cast<double>(im.layout.brickSize()) *
-                      static_cast<double>(im.layout.levelScale(0));
-  std::array<std::array<double, 3>, 3> qFromPatient{}, normalFromIndex{};
+  std::array<std::array<double, 3>, 3> normalFromIndex{};
   for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) {
-      qFromPatient[r][c] = indexFromPatient.m[r][c] / cube;
-      normalFromIndex[r][c] = indexFromPatient.m[c][r];
-    }
+    for (int c = 0; c < 3; ++c) normalFromIndex[r][c] = indexFromPatient.m[c][r];
   }
-  setMat3(prog.uniform("uQFromPatient"), qFromPatient);
   setMat3(prog.uniform("uNormalFromIndex"), normalFromIndex);
-  u3("uQOffset", {(indexFromPatient.m[0][3] + 0.5) / cube, (indexFromPatient.m[1][3] + 0.5) / cube,
-                  (indexFromPatient.m[2][3] + 0.5) / cube});
   const volume::Index3& dims = im.layout.levelDims(im.layout.leafLevel());
-  u3("uDomainMax", {static_cast<double>(dims[0]) / cube, static_cast<double>(dims[1]) / cube,
-                    static_cast<double>(dims[2]) / cube});
+  const Vec3 forward = normalize(camera.target - camera.eye);
   glUniform1i(prog.uniform("uLeafLevel"), im.layout.leafLevel());
   glUniform1i(prog.uniform("uMaxIterations"), static_cast<GLint>(3 * (leafRecords + 2)));
   glUniform1f(prog.uniform("uStepMm"), static_cast<float>(im.stepMm(options)));

@@ -18,6 +18,7 @@
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gl_program.h"
 #include "octoray/gpu/shader_sources.h"
+#include "gl_test_support.h"
 
 namespace octoray::gpu {
 namespace {
@@ -49,55 +50,6 @@ void main() { fragColor = vec4(vNdc, 0.0, 1.0); }
 constexpr int kWidth = 7;
 constexpr int kHeight = 5;
 
-bool glRequired() { return std::getenv("OCTORAY_REQUIRE_GL") != nullptr; }
-
-// Keeps Mesa's DRI drivers (*_dri.so) loaded for the rest of the process. Mesa unloads the
-// driver at eglTerminate / glfwTerminate without freeing its static state, and LeakSanitizer
-// then reports that memory from an "<unknown module>" that no suppression can name; resident,
-// the memory stays reachable from the driver and nothing is reported.
-void keepMesaDriversLoaded() {
-  dl_iterate_phdr(
-      [](dl_phdr_info* info, std::size_t, void*) {
-        const std::string_view name = info->dlpi_name != nullptr ? info->dlpi_name : "";
-        if (name.ends_with("_dri.so"))
-          dlopen(info->dlpi_name, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
-        return 0;
-      },
-      nullptr);
-}
-
-// A headless context, or a skip (a failure with OCTORAY_REQUIRE_GL) where EGL has none.
-class GlTest : public ::testing::Test {
- protected:
-  void SetUp() override { context_ = headless({}); }
-
-  std::unique_ptr<GlContext> headless(const GlContextOptions& options) {
-    try {
-      auto context = createHeadlessContext(options);
-      keepMesaDriversLoaded();
-      return context;
-    } catch (const Error& error) {
-      if (glRequired()) {
-        ADD_FAILURE() << "OCTORAY_REQUIRE_GL is set and " << error.what();
-      } else {
-        skipReason_ = error.what();
-      }
-      return nullptr;
-    }
-  }
-
-  std::unique_ptr<GlContext> context_;
-  std::string skipReason_;
-};
-
-#define OCTORAY_REQUIRE_CONTEXT(context)                                     \
-  do {                                                                       \
-    if (HasFailure()) return;                                                \
-    if (!(context)) {                                                        \
-      GTEST_SKIP() << "skipped: no OpenGL 4.5 core context (" << skipReason_ \
-                   << "); set OCTORAY_REQUIRE_GL=1 to make this a failure";  \
-    }                                                                        \
-  } while (0)
 
 // Draws the full-screen triangle with `program` into a fresh kWidth x kHeight RGBA32F target
 // and reads it back (row 0 at the bottom).

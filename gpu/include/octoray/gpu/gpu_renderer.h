@@ -27,6 +27,7 @@
 
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/image.h"
+#include "octoray/gpu/spatial_index.h"
 #include "octoray/gpu/working_set.h"
 #include "octoray/transfer/transfer_function.h"
 #include "octoray/volume/store_reader.h"
@@ -106,9 +107,20 @@ class GpuRenderer {
   const std::string& variantSource(const transfer::TransferFunction& tf,
                                    const RaycastOptions& options,
                                    Projection projection = Projection::Perspective);
+  // The GL program of that variant (compiles it if needed): tests ask GL which uniforms the
+  // compiled variant still uses, i.e. which code survived the preprocessor and the compiler.
+  unsigned variantProgram(const transfer::TransferFunction& tf, const RaycastOptions& options,
+                          Projection projection = Projection::Perspective);
 
   int64_t poolSlots() const;
   double defaultStepMm() const;
+
+  // For the traversal mirror test: the spatial index of the last frame, and the octree-space
+  // ray and domain of pixel (x, y) (row 0 at the top) as the shader computes them in single
+  // precision (its normalize and matrix product may round differently in the last bit).
+  const SpatialIndex& lastIndex() const;
+  OctreeRay pixelRay(const Camera& camera, int x, int y) const;
+  std::array<float, 3> domainMax(const Camera& camera) const;
 
  private:
   struct Impl;

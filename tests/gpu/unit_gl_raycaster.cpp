@@ -1,0 +1,489 @@
+// The GPU raycaster (gpu_renderer.h) against the CPU reference renderer, the oracle: the same
+// store, camera and transfer function at --lod-pixels 0 must give the reference's picture
+// (DVR), its isosurface depths and its MIP maxima; per-pixel leaf counts must equal the CPU
+// traversal mirror's; ramps must cross bricks without seams; variants must carry only the code
+// of the effects they use; nothing may be NaN; no GL error may occur.
+
+#include <epoxy/gl.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <memory>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "gl_test_support.h"
+#include "memory_volume.h"
+#include "octoray/dicom/error.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/gpu/camera.h"
+#include "octoray/gpu/gpu_renderer.h"
+#include "octoray/gpu/image_metrics.h"
+#include "octoray/gpu/reference/reference_renderer.h"
+#include "octoray/gpu/spatial_index.h"
+#include "octoray/transfer/transfer_function_io.h"
+#include "octoray/volume/phantom.h"
+#include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
+#include "test_paths.h"
+
+namespace octoray::gpu {
+namespace {
+
+using reference::ReferenceRenderer;
+using reference::ReferenceVolume;
+using reference::RenderMode;
+
+// A store built once per test binary run from `source` (border 2: central differences).
+std::filesystem::path buildTestStore(VolumeSource& source, const std::string& name, int brickSize) {
+  const std::filesystem::path dir = test::freshTempDir("gl_raycaster_" + name);
+  const std::filesystem::path path = dir / (name + ".octoray");
+  volume::BuildOptions options;
+  options.brickSize = brickSize;
+  options.border = 2;
+  volume::buildStore(source, path.string(), options);
+  return path;
+}
+
+const std::filesystem::path& phantomStore() {
+  static const std::filesystem::path path = [] {
+    volume::PhantomOptions options;
+    options.dims = {96, 88, 72};
+    options.spacingMm = {0.6, 0.55, 0.8};
+    options.seed = 7;
+    const auto source = volume::makePhantom(options);
+    return buildTestStore(*source, "phantom", 16);
+  }();
+  return path;
+}
+
+// A linear ramp in index space on a sheared grid (MemoryVolume's patientFromIndex has a
+// shear): trilinear interpolation reproduces it exactly, so any seam between bricks, a wrong
+// border or a half-texel shift shows against the reference.
+const std::filesystem::path& rampStore() {
+  static const std::filesystem::path path = [] {
+    test::MemoryVolume source({70, 50, 40}, [](int64_t i, int64_t j, int64_t k) {
+      return static_cast<float>(-900 + 10 * i + 14 * j + 17 * k);
+    });
+    return buildTestStore(source, "ramp", 16);
+  }();
+  return path;
+}
+
+Camera orbit(const volume::StoreReader& store, double azimuth, double elevation, int size,
+             Projection projection = Projection::Perspective, double zoom = 1.0) {
+  OrbitParameters o;
+  o.azimuthDegrees = azimuth;
+  o.elevationDegrees = elevation;
+  o.width = o.height = size;
+  o.projection = projection;
+  o.zoom = zoom;
+  return orbitCamera({store.layout().levelDims(store.layout().leafLevel()), store.patientFromIndex()}, o);
+}
+
+reference::RenderOptions referenceOptions(const RaycastOptions& o) {
+  reference::RenderOptions r;
+  r.mode = o.mode == RaycastMode::Iso ? RenderMode::Iso
+           : o.mode == RaycastMode::Mip ? RenderMode::Mip
+                                        : RenderMode::Dvr;
+  r.stepMm = o.stepMm;
+  r.earlyTermination = o.earlyTermination;
+  r.shading = o.shading == RaycastOptions::Shading::On    ? reference::RenderOptions::Shading::On
+              : o.shading == RaycastOptions::Shading::Off ? reference::RenderOptions::Shading::Off
+                                                          : reference::RenderOptions::Shading::FromTransferFunction;
+  r.gradientOpacity = o.gradientOpacity;
+  r.boundary.enabled = o.boundary.enabled;
+  r.boundary.kC = o.boundary.kC;
+  r.boundary.kS = o.boundary.kS;
+  r.boundary.kE = o.boundary.kE;
+  r.isoValue = o.isoValue;
+  return r;
+}
+
+int64_t nonFinite(const Frame& frame) {
+  int64_t n = 0;
+  for (float v : frame.image.rgba) n += std::isfinite(v) ? 0 : 1;
+  return n;
+}
+
+transfer::TransferFunction rampTf(bool shade) {
+  transfer::TransferFunction tf;
+  tf.name = "ramp";
+  tf.color = {{-900, 0.1f, 0.2f, 0.9f}, {0, 0.9f, 0.8f, 0.2f}, {1200, 1.0f, 0.3f, 0.1f}};
+  tf.opacity = {{-900, 0.0f}, {-600, 0.02f}, {1200, 0.15f}};
+  tf.material.shade = shade;
+  tf.unitDistanceMm = 1.0;
+  return tf;
+}
+
+class RaycasterTest : public GlTest {
+ protected:
+  // Renders with both renderers; checks finiteness and the GL error log.
+  struct Pair {
+    Frame gpu;
+    reference::RenderResult reference;
+  };
+  Pair renderBoth(const volume::StoreReader& store, const Camera& camera,
+                  const transfer::TransferFunction& tf, const RaycastOptions& options) {
+    GpuRenderer renderer(store);
+    Pair p{renderer.render(camera, tf, options), {}};
+    const ReferenceVolume volume = ReferenceVolume::fromStore(store);
+    p.reference = ReferenceRenderer(volume).render(camera, tf, referenceOptions(options));
+    EXPECT_EQ(nonFinite(p.gpu), 0) << "NaN or infinite colour";
+    EXPECT_TRUE(context_->takeErrors().empty());
+    return p;
+  }
+};
+
+#define OCTORAY_GL_TEST_PREAMBLE() OCTORAY_REQUIRE_CONTEXT(context_)
+
+TEST_F(RaycasterTest, ShadedDvrMatchesTheReferenceOnThePhantom) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  ASSERT_TRUE(tf.material.shade);
+  for (const auto& [azimuth, elevation] : {std::pair{30.0, 20.0}, std::pair{200.0, -35.0}}) {
+    const Camera camera = orbit(store, azimuth, elevation, 128);
+    const Pair p = renderBoth(store, camera, tf, options);
+    const ImageMetrics m = compare(p.reference.image, p.gpu.image);
+    EXPECT_GE(m.psnrDb, 40.0) << "azimuth " << azimuth;
+    EXPECT_GE(m.ssim, 0.98) << "azimuth " << azimuth;
+    EXPECT_LE(m.maxAlphaError, 0.05) << "azimuth " << azimuth;
+    // Not an empty picture matching an empty picture.
+    double coverage = 0;
+    for (std::size_t i = 3; i < p.reference.image.rgba.size(); i += 4) coverage += p.reference.image.rgba[i];
+    EXPECT_GT(coverage, 0.1 * camera.width * camera.height);
+  }
+}
+
+TEST_F(RaycasterTest, EnhancementsAndUnshadedDvrMatchTheReference) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  const Camera camera = orbit(store, 120, 10, 96, Projection::Orthographic);
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.lodPixels = 0;
+  options.shading = RaycastOptions::Shading::Off;
+  ImageMetrics m = compare(renderBoth(store, camera, tf, options).reference.image,
+                           renderBoth(store, camera, tf, options).gpu.image);
+  EXPECT_GE(m.psnrDb, 40.0);
+  options.shading = RaycastOptions::Shading::On;
+  options.boundary = {true, 0.2, 0.05, 0.8};
+  const Pair p = renderBoth(store, camera, tf, options);
+  m = compare(p.reference.image, p.gpu.image);
+  EXPECT_GE(m.psnrDb, 40.0);
+  EXPECT_GE(m.ssim, 0.98);
+}
+
+TEST_F(RaycasterTest, IsosurfaceDepthIsWithinHalfAVoxelOfTheReference) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  RaycastOptions options;
+  options.mode = RaycastMode::Iso;
+  options.isoValue = 300;
+  options.lodPixels = 0;
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  const Camera camera = orbit(store, 75, 25, 128);
+  const Pair p = renderBoth(store, camera, tf, options);
+  const double halfVoxel = 0.5 * 0.55;
+  int64_t hitsBoth = 0, hitMismatch = 0, far = 0;
+  for (std::size_t i = 0; i < p.gpu.image.depth.size(); ++i) {
+    const bool g = std::isfinite(p.gpu.image.depth[i]), r = std::isfinite(p.reference.image.depth[i]);
+    if (g != r) {
+      ++hitMismatch;
+      continue;
+    }
+    if (!g) continue;
+    ++hitsBoth;
+    if (std::abs(p.gpu.image.depth[i] - p.reference.image.depth[i]) > halfVoxel) ++far;
+  }
+  EXPECT_GT(hitsBoth, 2000);
+  EXPECT_EQ(far, 0) << "pixels whose isosurface depth differs by more than half a voxel";
+  // A pixel may change between hit and miss only where the surface grazes the ray.
+  EXPECT_LE(hitMismatch, hitsBoth / 500) << hitMismatch << " pixels hit in one renderer only";
+  const ImageMetrics m = compare(p.reference.image, p.gpu.image);
+  EXPECT_GE(m.psnrDb, 35.0);
+}
+
+TEST_F(RaycasterTest, MipEqualsTheReferenceAtSixteenBits) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  RaycastOptions options;
+  options.mode = RaycastMode::Mip;
+  options.lodPixels = 0;
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  for (const Projection projection : {Projection::Perspective, Projection::Orthographic}) {
+    const Camera camera = orbit(store, 250, 40, 96, projection);
+    const Pair p = renderBoth(store, camera, tf, options);
+    const double oneStep = store.header().valueScale;  // one 16-bit stored step, in HU
+    // Where the reference's maximum is invisible (zero opacity), the working set may lack the
+    // bricks that hold it (they cannot show): the GPU may then miss or find a lower, equally
+    // invisible maximum. Visible maxima must be equal.
+    const auto visible = [&](double v) { return !std::isnan(v) && tf.evaluate(v)[3] > 0; };
+    int64_t hits = 0, differ = 0;
+    double worst = 0;
+    for (std::size_t i = 0; i < p.gpu.value.size(); ++i) {
+      const double r = p.reference.value[i], g = p.gpu.value[i];
+      if (!visible(r)) {
+        EXPECT_FALSE(visible(g)) << "pixel " << i << ": GPU maximum " << g << " HU, reference " << r;
+        continue;
+      }
+      ASSERT_FALSE(std::isnan(g)) << "pixel " << i << " missed by the GPU";
+      ++hits;
+      worst = std::max(worst, std::abs(r - g));
+      if (std::abs(r - g) > oneStep) ++differ;
+    }
+    EXPECT_GT(hits, 1000);
+    EXPECT_EQ(differ, 0) << "worst difference " << worst << " HU";
+  }
+}
+
+TEST_F(RaycasterTest, RampCrossesBricksAndLevelsWithoutSeams) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(rampStore().string());
+  ASSERT_GT(store.layout().levels(), 2);
+  RaycastOptions options;
+  options.lodPixels = 0;
+  for (const bool shade : {false, true}) {
+    const Camera camera = orbit(store, 33, 27, 128, Projection::Perspective, 1.4);
+    const Pair p = renderBoth(store, camera, rampTf(shade), options);
+    const ImageMetrics m = compare(p.reference.image, p.gpu.image);
+    EXPECT_GE(m.psnrDb, 50.0) << (shade ? "shaded" : "unshaded");
+    EXPECT_LE(m.maxAbsError, 0.02) << (shade ? "shaded" : "unshaded");
+  }
+  // MIP of a linear field is its value at an end of the chord; exact at every pixel, also
+  // where rays run along brick faces (orthographic, axis-aligned view).
+  options.mode = RaycastMode::Mip;
+  for (const double azimuth : {0.0, 90.0, 17.0}) {
+    const Camera camera = orbit(store, azimuth, 0, 100, Projection::Orthographic);
+    const Pair p = renderBoth(store, camera, rampTf(false), options);
+    double worst = 0;
+    for (std::size_t i = 0; i < p.gpu.value.size(); ++i) {
+      if (std::isnan(p.reference.value[i])) continue;
+      worst = std::max(worst, std::abs(p.reference.value[i] - p.gpu.value[i]));
+    }
+    EXPECT_LE(worst, 0.05) << "azimuth " << azimuth;
+  }
+}
+
+// Coarser working sets: the picture degrades gracefully (no holes, no NaN), takes fewer
+// bricks, and every brick still sits where it belongs (close to the full-resolution picture).
+TEST_F(RaycasterTest, CoarserWorkingSetsStayCloseAndUseFewerBricks) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  const Camera camera = orbit(store, 45, 30, 128);
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  GpuRenderer renderer(store);
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Frame fine = renderer.render(camera, tf, options);
+  int64_t previous = fine.stats.workingSetBricks;
+  for (const double lod : {2.0, 4.0, 16.0}) {
+    options.lodPixels = lod;
+    const Frame coarse = renderer.render(camera, tf, options);
+    EXPECT_EQ(nonFinite(coarse), 0);
+    EXPECT_LE(coarse.stats.workingSetBricks, previous) << "lod " << lod;
+    previous = coarse.stats.workingSetBricks;
+    const ImageMetrics m = compare(fine.image, coarse.image);
+    EXPECT_GE(m.psnrDb, lod <= 2 ? 25.0 : 15.0) << "lod " << lod;
+  }
+  EXPECT_LT(previous, fine.stats.workingSetBricks / 4) << "16 px voxels take far fewer bricks";
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+// Per-pixel leaf counts of the shader equal those of traverseRay (the mirror) on the same
+// index. The shader receives the ray from the same single-precision uniforms, but its
+// normalize() and matrix product may round the last bit differently; where a 1-ulp change of
+// the ray changes the mirror's count (the ray grazes a node boundary), the shader's count
+// must be one of the mirror's answers; everywhere else it must be equal.
+TEST_F(RaycasterTest, LeafCountsEqualTheTraversalMirror) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  transfer::TransferFunction tf = rampTf(false);
+  tf.opacity = {{-1024, 0.0f}, {-500, 0.0f}, {-400, 0.001f}, {3071, 0.001f}};
+  GpuRenderer renderer(store);
+  RaycastOptions options;
+  options.stats = true;
+  options.earlyTermination = 1.0;  // rays never stop early: every leaf on the chord counts
+  int64_t pixelsChecked = 0, unstable = 0;
+  std::set<int> levelsSeen;
+  const struct {
+    double azimuth, elevation, lod;
+    Projection projection;
+  } views[] = {{0, 0, 0, Projection::Orthographic},
+               {90, 0, 1, Projection::Orthographic},
+               {31, 22, 0, Projection::Perspective},
+               {140, -50, 3, Projection::Perspective},
+               {260, 65, 8, Projection::Perspective}};
+  for (const auto& view : views) {
+    options.lodPixels = view.lod;
+    const Camera camera = orbit(store, view.azimuth, view.elevation, 64, view.projection, 1.2);
+    const Frame frame = renderer.render(camera, tf, options);
+    const SpatialIndex& index = renderer.lastIndex();
+    const std::array<float, 3> domainMax = renderer.domainMax(camera);
+    const auto count = [&](const OctreeRay& ray) {
+      const OctreeChord chord = clipOctreeDomain(ray, domainMax, 0.0f);
+      if (!(chord.tFar >= chord.tNear)) return 0;
+      int n = 0;
+      traverseRay(index, ray, chord.tNear, chord.tFar, [&](const LeafCrossing& c) {
+        ++n;
+        levelsSeen.insert(c.level);
+        return true;
+      });
+      return n;
+    };
+    for (int y = 0; y < camera.height; ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const OctreeRay ray = renderer.pixelRay(camera, x, y);
+        const int expected = count(ray);
+        std::set<int> answers{expected};
+        for (int k = 0; k < 6; ++k) {
+          OctreeRay nudged = ray;
+          float& component = k < 3 ? nudged.origin[static_cast<std::size_t>(k)]
+                                   : nudged.direction[static_cast<std::size_t>(k - 3)];
+          for (const float towards : {-INFINITY, INFINITY}) {
+            const float saved = component;
+            component = std::nextafter(component, towards);
+            answers.insert(count(nudged));
+            component = saved;
+          }
+        }
+        const float got = frame.leafCounts[static_cast<std::size_t>(y * camera.width + x)];
+        ++pixelsChecked;
+        if (answers.size() == 1) {
+          ASSERT_EQ(got, static_cast<float>(expected)) << "pixel (" << x << ", " << y << ")";
+        } else {
+          ++unstable;
+          ASSERT_TRUE(answers.count(static_cast<int>(got)) > 0) << "pixel (" << x << ", " << y << ")";
+        }
+      }
+    }
+  }
+  EXPECT_EQ(pixelsChecked, 5 * 64 * 64);
+  EXPECT_LT(unstable, pixelsChecked / 100) << "grazing pixels";
+  EXPECT_GE(levelsSeen.size(), 2u) << "the cuts should mix levels";
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+// A scene pays only for the effects it uses: the compiled variants keep the uniforms of the
+// code they contain and nothing else (GL reports a uniform inactive when the compiled program
+// does not use it).
+TEST_F(RaycasterTest, VariantsContainOnlyTheEffectsTheyUse) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  GpuRenderer renderer(store);
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  const auto active = [](unsigned program, const char* name) {
+    return glGetUniformLocation(program, name) >= 0;
+  };
+  RaycastOptions options;
+  options.shading = RaycastOptions::Shading::Off;
+  unsigned program = renderer.variantProgram(tf, options);
+  EXPECT_FALSE(active(program, "uNormalFromIndex")) << "gradient code without shading";
+  EXPECT_FALSE(active(program, "uMaterial")) << "lighting code without shading";
+  EXPECT_TRUE(active(program, "uTf"));
+  EXPECT_TRUE(active(program, "uEarlyTermination"));
+
+  options.shading = RaycastOptions::Shading::On;
+  program = renderer.variantProgram(tf, options);
+  EXPECT_TRUE(active(program, "uNormalFromIndex"));
+  EXPECT_TRUE(active(program, "uMaterial"));
+  EXPECT_FALSE(active(program, "uBoundary"));
+  EXPECT_FALSE(active(program, "uSilhouette"));
+  options.boundary.enabled = true;
+  options.silhouette.enabled = true;
+  program = renderer.variantProgram(tf, options);
+  EXPECT_TRUE(active(program, "uBoundary"));
+  EXPECT_TRUE(active(program, "uSilhouette"));
+
+  options = {};
+  options.mode = RaycastMode::Mip;
+  options.shading = RaycastOptions::Shading::On;  // ignored in MIP
+  program = renderer.variantProgram(tf, options);
+  EXPECT_FALSE(active(program, "uTf")) << "opacity classification in MIP";
+  EXPECT_FALSE(active(program, "uMaterial")) << "shading in MIP";
+  EXPECT_FALSE(active(program, "uNormalFromIndex")) << "gradients in MIP";
+  EXPECT_FALSE(active(program, "uEarlyTermination"));
+  const std::vector<std::string> defines = renderer.variantDefines(tf, options);
+  EXPECT_EQ(std::count(defines.begin(), defines.end(), "SHADING"), 0);
+
+  options.mode = RaycastMode::Iso;
+  options.shading = RaycastOptions::Shading::Off;
+  program = renderer.variantProgram(tf, options);
+  EXPECT_FALSE(active(program, "uTf"));
+  EXPECT_FALSE(active(program, "uMaterial"));
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+TEST_F(RaycasterTest, SmallPoolKeepsTheWorkingSetCoarseInsteadOfFailing) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  RendererConfig config;
+  const std::size_t edge = static_cast<std::size_t>(store.layout().storedEdge());
+  config.poolBytes = 12 * edge * edge * edge * 2;  // 12 slots of 16-bit samples
+  GpuRenderer renderer(store, config);
+  EXPECT_EQ(renderer.poolSlots(), 12);
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Frame frame = renderer.render(orbit(store, 10, 10, 64), transfer::findPreset("bone"), options);
+  EXPECT_LE(frame.stats.workingSetBricks, 12);
+  EXPECT_GT(frame.stats.workingSetBricks, 0);
+  EXPECT_EQ(nonFinite(frame), 0);
+  double coverage = 0;
+  for (std::size_t i = 3; i < frame.image.rgba.size(); i += 4) coverage += frame.image.rgba[i];
+  EXPECT_GT(coverage, 100.0) << "a coarse picture, not an empty one";
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+TEST_F(RaycasterTest, BadOptionsAreRejectedWithAMessage) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(phantomStore().string());
+  GpuRenderer renderer(store);
+  const Camera camera = orbit(store, 0, 0, 16);
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.earlyTermination = 0;
+  EXPECT_THROW(renderer.render(camera, tf, options), Error);
+  options = {};
+  options.lodPixels = -1;
+  EXPECT_THROW(renderer.render(camera, tf, options), Error);
+  options = {};
+  options.mode = RaycastMode::Iso;
+  options.isoValue = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(renderer.render(camera, tf, options), Error);
+  RendererConfig config;
+  config.gradientPool = true;  // the store has no gradients
+  EXPECT_THROW(GpuRenderer(store, config), Error);
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+// Real CT: the Philips 1 mm head series, CT-Bone from 3D Slicer's presets.
+TEST_F(RaycasterTest, PhilipsHeadCtBoneMatchesTheReference) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const std::filesystem::path series = test::philipsDir() / "S21570" / "S2020";
+  OCTORAY_REQUIRE_PATH(series);
+  const std::filesystem::path presets = test::sharedDir() / "data/presets/slicer/presets.xml";
+  OCTORAY_REQUIRE_PATH(presets);
+  const auto source = openVolume(series.string());
+  const std::filesystem::path path = buildTestStore(*source, "philips", 32);
+  const volume::StoreReader store(path.string());
+  const transfer::TransferFunction tf =
+      transfer::selectTransferFunction(transfer::loadTransferFunctions(presets.string()), "CT-Bone",
+                                       presets.string());
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Pair p = renderBoth(store, orbit(store, 20, 10, 128), tf, options);
+  const ImageMetrics m = compare(p.reference.image, p.gpu.image);
+  EXPECT_GE(m.psnrDb, 40.0);
+  EXPECT_GE(m.ssim, 0.98);
+}
+
+}  // namespace
+}  // namespace octoray::gpu
