@@ -78,19 +78,27 @@ TEST_F(RenderTools, ModesAndErrors) {
   const std::string out = (dir / "x.png").string();
   for (const char* mode : {"iso", "mip"}) {
     const ProcessResult r = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", mode,
-                                        "--iso", "300", "--size", "16x16"});
+                                        "--iso", "300", "--size", "16x16", "--reference"});
     EXPECT_EQ(r.exitCode, 0) << mode << ": " << r.err;
   }
-  const ProcessResult missing =
-      runProcess({render, (dir / "none.nrrd").string(), "-o", out, "--preset", "bone"});
+  // The reference path; the GPU path's errors are tested in unit_gl_render_tool.cpp.
+  const ProcessResult missing = runProcess(
+      {render, (dir / "none.nrrd").string(), "-o", out, "--preset", "bone", "--reference"});
   EXPECT_EQ(missing.exitCode, 1);
   EXPECT_NE(missing.err.find("none.nrrd"), std::string::npos) << missing.err;
   std::ofstream(dir / "bad.octoray") << "OCTORAY\x1a" << std::string(40, 'x');
-  const ProcessResult bad =
-      runProcess({render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone"});
+  const ProcessResult bad = runProcess(
+      {render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone", "--reference"});
   EXPECT_EQ(bad.exitCode, 1);
   EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
-  EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "iso"}).exitCode, 1);
+  EXPECT_EQ(
+      runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "iso", "--reference"}).exitCode,
+      1);
+  // GPU-only options with --reference, and --gpu with --reference, are usage errors.
+  EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--lod-pixels", "2"})
+                .exitCode,
+            2);
+  EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--gpu"}).exitCode, 2);
   EXPECT_EQ(runProcess({render, nrrd, "-o", out}).exitCode, 2);  // no transfer function
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "x"}).exitCode, 2);
 }

@@ -1,0 +1,137 @@
+// octoray-render's GPU path (the default) as a user runs it: the timing loop's --json report,
+// a non-store input built into a temporary store that is removed afterwards, agreement with
+// --reference, and bad input exiting 1 with one message naming the file.
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include "gl_test_support.h"
+#include "octoray/gpu/image_io.h"
+#include "octoray/gpu/image_metrics.h"
+#include "octoray/volume/phantom.h"
+#include "octoray/volume/store_builder.h"
+#include "run_process.h"
+#include "test_paths.h"
+
+namespace octoray::gpu {
+namespace {
+
+using test::ProcessResult;
+using test::runProcess;
+using test::toolPath;
+
+class GpuRenderTool : public GlTest {
+ protected:
+  void SetUp() override {
+    GlTest::SetUp();  // a context here tells whether the tool will find one
+    if (!context_) return;
+    if (!std::filesystem::exists(toolPath("octoray-render"))) GTEST_SKIP() << "tool not built";
+    dir = test::freshTempDir("gpu_tool");
+    volume::PhantomOptions phantom;
+    phantom.dims = {48, 44, 40};
+    phantom.spacingMm = {1.2, 1.3, 1.5};
+    nrrd = (dir / "phantom.nhdr").string();
+    volume::writePhantomNrrd(phantom, nrrd);
+    store = (dir / "phantom.octoray").string();
+    volume::BuildOptions options;
+    options.brickSize = 16;
+    options.border = 2;
+    volume::buildStore(*volume::makePhantom(phantom), store, options);
+  }
+  std::filesystem::path dir;
+  std::string nrrd, store;
+};
+
+std::set<std::filesystem::path> temporaryStores() {
+  std::set<std::filesystem::path> found;
+  for (const auto& entry : std::filesystem::directory_iterator(std::filesystem::temp_directory_path())) {
+    if (entry.path().filename().string().starts_with("octoray-render-")) found.insert(entry.path());
+  }
+  return found;
+}
+
+TEST_F(GpuRenderTool, TimingLoopReportsEveryFrame) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const ProcessResult r = runProcess({render, store, "-o", (dir / "gpu.png").string(), "--exr",
+                                      (dir / "gpu.exr").string(), "--preset", "bone", "--size",
+                                      "64x48", "--gpu", "--lod-pixels", "0", "--frames", "4",
+                                      "--orbit", "15", "--json"});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  const auto report = nlohmann::json::parse(r.out);
+  EXPECT_EQ(report["renderer"], "gpu");
+  EXPECT_EQ(report["width"], 64);
+  EXPECT_EQ(report["height"], 48);
+  ASSERT_EQ(report["frames"].size(), 4u);
+  std::vector<double> ms;
+  for (const auto& frame : report["frames"]) {
+    ms.push_back(frame["ms"].get<double>());
+    EXPECT_GT(frame["samplesPerPixel"].get<double>(), 0);
+    EXPECT_GT(frame["bricksTouched"].get<int64_t>(), 0);
+    EXPECT_LE(frame["bricksTouched"].get<int64_t>(), frame["workingSetBricks"].get<int64_t>());
+    EXPECT_GT(frame["poolBytesUsed"].get<int64_t>(), 0);
+    EXPECT_LE(frame["poolBytesUsed"].get<int64_t>(), frame["poolBytes"].get<int64_t>());
+  }
+  EXPECT_EQ(report["firstFrameMs"].get<double>(), ms[0]);
+  std::vector<double> steady(ms.begin() + 1, ms.end());
+  std::sort(steady.begin(), steady.end());
+  EXPECT_EQ(report["medianMs"].get<double>(), steady[1]);
+  // Turning frames touch different bricks: frame 1 (15 degrees) uploads nothing new only if
+  // the whole volume is resident, which it is here (lod 0, large pool): uploads happen once.
+  EXPECT_GT(report["frames"][0]["bricksUploaded"].get<int64_t>(), 0);
+  EXPECT_EQ(report["frames"][1]["bricksUploaded"].get<int64_t>(), 0);
+
+  const ProcessResult ref = runProcess({render, store, "-o", (dir / "ref.png").string(), "--exr",
+                                        (dir / "ref.exr").string(), "--preset", "bone", "--size",
+                                        "64x48", "--reference"});
+  ASSERT_EQ(ref.exitCode, 0) << ref.err;
+  const ImageMetrics m = compare(readImage(dir / "ref.exr"), readImage(dir / "gpu.exr"));
+  EXPECT_GE(m.psnrDb, 40.0);
+  EXPECT_EQ(m.nonFiniteB, 0);
+}
+
+TEST_F(GpuRenderTool, NonStoreInputUsesATemporaryStoreThatIsRemoved) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const auto before = temporaryStores();
+  const ProcessResult r = runProcess({render, nrrd, "-o", (dir / "n.exr.png").string(), "--exr",
+                                      (dir / "n.exr").string(), "--preset", "bone", "--size",
+                                      "40x40", "--lod-pixels", "0"});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_EQ(temporaryStores(), before) << "the temporary store was left behind";
+  const ProcessResult s = runProcess({render, store, "-o", (dir / "s.png").string(), "--exr",
+                                      (dir / "s.exr").string(), "--preset", "bone", "--size",
+                                      "40x40", "--lod-pixels", "0"});
+  ASSERT_EQ(s.exitCode, 0) << s.err;
+  const ImageMetrics m = compare(readImage(dir / "s.exr"), readImage(dir / "n.exr"));
+  EXPECT_GE(m.psnrDb, 60.0) << "the NRRD and its store should render alike";
+}
+
+TEST_F(GpuRenderTool, BadInputExitsOneNamingTheFile) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const std::string out = (dir / "x.png").string();
+  const ProcessResult missing =
+      runProcess({render, (dir / "none.nrrd").string(), "-o", out, "--preset", "bone"});
+  EXPECT_EQ(missing.exitCode, 1);
+  EXPECT_NE(missing.err.find("none.nrrd"), std::string::npos) << missing.err;
+  std::ofstream(dir / "bad.octoray") << "OCTORAY\x1a" << std::string(40, 'x');
+  const ProcessResult bad =
+      runProcess({render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone"});
+  EXPECT_EQ(bad.exitCode, 1);
+  EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
+  const ProcessResult noGradients =
+      runProcess({render, store, "-o", out, "--preset", "bone", "--gradient-pool"});
+  EXPECT_EQ(noGradients.exitCode, 1);
+  EXPECT_NE(noGradients.err.find("--gradients"), std::string::npos) << noGradients.err;
+  EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--lod-pixels", "-1"}).exitCode, 1);
+  EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--boundary", "1,2"}).exitCode, 1);
+  EXPECT_FALSE(std::filesystem::exists(out)) << "no output after a failure";
+}
+
+}  // namespace
+}  // namespace octoray::gpu
