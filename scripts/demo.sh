@@ -20,9 +20,14 @@ echo
 echo
 "$build/bin/octoray-validate" "$out/exam.octoray"
 echo
-# A synthetic head CT through the whole chain, rendered by the CPU reference renderer.
+# A synthetic head CT through the whole chain: rendered by the GPU raycaster (headless GL;
+# llvmpipe where there is no GPU), then by the CPU reference renderer, and the two compared.
 "$build/bin/octoray-phantom" --size 160x160x160 -o "$out/head.nhdr"
-"$build/bin/octoray-import" "$out/head.nhdr" -o "$out/head.octoray"
-"$build/bin/octoray-render" "$out/head.octoray" -o "$build/octoray-demo.png" --preset bone \
-  --size 384x384 --azimuth 30 --elevation 15
+"$build/bin/octoray-import" "$out/head.nhdr" -o "$out/head.octoray" --border 2
+view=(--preset bone --size 384x384 --azimuth 30 --elevation 15)
+"$build/bin/octoray-render" "$out/head.octoray" -o "$build/octoray-demo.png" --exr "$out/gpu.exr" \
+  "${view[@]}" --frames 5 --orbit 10
+"$build/bin/octoray-render" "$out/head.octoray" --reference -o "$out/reference.png" \
+  --exr "$out/reference.exr" "${view[@]}"
+"$build/bin/octoray-compare" "$out/reference.exr" "$out/gpu.exr"
 echo "picture: $build/octoray-demo.png"
