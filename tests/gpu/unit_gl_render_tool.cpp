@@ -14,6 +14,7 @@
 #include "octoray/gpu/image_metrics.h"
 #include "octoray/volume/phantom.h"
 #include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
 #include "run_process.h"
 #include "test_paths.h"
 
@@ -131,6 +132,46 @@ TEST_F(GpuRenderTool, BadInputExitsOneNamingTheFile) {
   EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--lod-pixels", "-1"}).exitCode, 1);
   EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--boundary", "1,2"}).exitCode, 1);
   EXPECT_FALSE(std::filesystem::exists(out)) << "no output after a failure";
+}
+
+// A brick the view needs fails its checksum: one message naming the store and the node, exit
+// 1, no picture.
+TEST_F(GpuRenderTool, CorruptedBrickFailsTheRenderNamingTheStore) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::filesystem::path corrupt = dir / "corrupt.octoray";
+  std::filesystem::copy_file(store, corrupt);
+  int64_t victim = -1;
+  {
+    const volume::StoreReader reader(store);
+    const int leaf = reader.layout().leafLevel();
+    float best = -1e30f;
+    for (int64_t id = 0; id < static_cast<int64_t>(reader.nodes().size()); ++id) {
+      const volume::NodeRecord& node = reader.node(id);
+      if (reader.layout().nodeKey(id).level != leaf || node.payloadBytes == 0) continue;
+      if (node.maxValue > best) {  // bone: visible with the bone preset, so in the working set
+        best = node.maxValue;
+        victim = id;
+      }
+    }
+    ASSERT_GE(victim, 0);
+    const volume::NodeRecord& node = reader.node(victim);
+    std::fstream f(corrupt, std::ios::in | std::ios::out | std::ios::binary);
+    const auto at = static_cast<std::streamoff>(node.payloadOffset + node.payloadBytes / 2);
+    f.seekg(at);
+    char byte = 0;
+    f.read(&byte, 1);
+    byte = static_cast<char>(byte ^ 0x5a);
+    f.seekp(at);
+    f.write(&byte, 1);
+    ASSERT_TRUE(f.good());
+  }
+  const std::string out = (dir / "corrupt.png").string();
+  const ProcessResult r = runProcess({toolPath("octoray-render").string(), corrupt.string(), "-o",
+                                      out, "--preset", "bone", "--size", "48x48", "--lod-pixels", "0"});
+  EXPECT_EQ(r.exitCode, 1) << r.err;
+  EXPECT_NE(r.err.find("corrupt.octoray"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("checksum"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(out));
 }
 
 }  // namespace
