@@ -2,13 +2,17 @@
 
 #include "octoray/gpu/gl_context.h"
 
+#include <dlfcn.h>
 #include <epoxy/egl.h>
+#include <link.h>
 #include <epoxy/gl.h>
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 #include <fmt/format.h>
 
+#include <cstddef>
 #include <map>
+#include <string_view>
 #include <mutex>
 #include <utility>
 
@@ -335,6 +339,26 @@ struct GlDebugLog {
 
 namespace {
 
+// Keeps the GL drivers the context loaded (Mesa's *_dri.so) resident until the process exits.
+// Mesa unloads its driver at eglTerminate / glfwTerminate without freeing the driver's static
+// state; LeakSanitizer then reports that memory from an "<unknown module>" that no
+// suppression can name, which would fail every sanitised run of a GL tool. Resident, the
+// memory stays reachable and nothing is reported; a process that rendered once would keep
+// the driver anyway when it renders again.
+void keepDriversResident() {
+  dl_iterate_phdr(
+      [](dl_phdr_info* info, std::size_t, void*) {
+        const std::string_view name = info->dlpi_name != nullptr ? info->dlpi_name : "";
+        if (name.ends_with("_dri.so")) dlopen(info->dlpi_name, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+        return 0;
+      },
+      nullptr);
+}
+
+}  // namespace
+
+namespace {
+
 // Keeps errors and high-severity messages of any type; debug output is synchronous, so this
 // runs on the thread of the failing GL call. The shader compiler's messages are left out:
 // GlProgram reports a failed compile with its log as an exception.
@@ -367,6 +391,7 @@ GlContext::GlContext(bool debug) : debug_(debug), log_(std::make_unique<detail::
 GlContext::~GlContext() = default;
 
 void GlContext::initialise(std::string_view api) {
+  keepDriversResident();
   GLint major = 0;
   GLint minor = 0;
   GLint profile = 0;

@@ -3,9 +3,7 @@
 // EGL has none (a failure when OCTORAY_REQUIRE_GL is set). Every GL test file uses it, and
 // every GL object a test creates must be destroyed while the context is current.
 
-#include <dlfcn.h>
 #include <gtest/gtest.h>
-#include <link.h>
 
 #include <cstdlib>
 #include <memory>
@@ -19,21 +17,6 @@ namespace octoray::gpu {
 
 inline bool glRequired() { return std::getenv("OCTORAY_REQUIRE_GL") != nullptr; }
 
-// Keeps Mesa's DRI drivers (*_dri.so) loaded for the rest of the process. Mesa unloads the
-// driver at eglTerminate / glfwTerminate without freeing its static state, and LeakSanitizer
-// then reports that memory from an "<unknown module>" that no suppression can name; resident,
-// the memory stays reachable from the driver and nothing is reported.
-inline void keepMesaDriversLoaded() {
-  dl_iterate_phdr(
-      [](dl_phdr_info* info, std::size_t, void*) {
-        const std::string_view name = info->dlpi_name != nullptr ? info->dlpi_name : "";
-        if (name.ends_with("_dri.so"))
-          dlopen(info->dlpi_name, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
-        return 0;
-      },
-      nullptr);
-}
-
 // A headless context, or a skip (a failure with OCTORAY_REQUIRE_GL) where EGL has none.
 class GlTest : public ::testing::Test {
  protected:
@@ -42,7 +25,6 @@ class GlTest : public ::testing::Test {
   std::unique_ptr<GlContext> headless(const GlContextOptions& options) {
     try {
       auto context = createHeadlessContext(options);
-      keepMesaDriversLoaded();
       return context;
     } catch (const Error& error) {
       if (glRequired()) {
