@@ -418,42 +418,48 @@ void main() {
                            texelFetch(uPool, ic + ivec3(1, 0, 1), 0).r,
                            texelFetch(uPool, ic + ivec3(0, 1, 1), 0).r,
                            texelFetch(uPool, ic + ivec3(1, 1, 1), 0).r);
+            // The interpolant never exceeds its cell's largest texel: a cell that cannot
+            // raise the maximum found so far needs no evaluation (exact; most cells behind
+            // the first bright one).
 #ifdef STATS
             stats.x += 1.0;
 #endif
-            float h = tb - ta;
-            float v0 = trilinearCell(u0 + ta * p1 - c0, lo, hi);
-            float v1 = trilinearCell(u0 + (ta + h / 3.0) * p1 - c0, lo, hi);
-            float v2 = trilinearCell(u0 + (ta + 2.0 * h / 3.0) * p1 - c0, lo, hi);
-            float v3 = trilinearCell(u0 + tb * p1 - c0, lo, hi);
-            if (!started) {
-              best = v0;
-              bestT = ta;
-              started = true;
-            }
-            float d1 = v1 - v0, d2 = v2 - 2.0 * v1 + v0, d3 = v3 - 3.0 * v2 + 3.0 * v1 - v0;
-            float qa = 0.5 * d3, qb = d2 - d3, qc = d1 - 0.5 * d2 + d3 / 3.0;
-            float scale = abs(qa) + abs(qb) + abs(qc);
-            float r0 = -1.0, r1 = -1.0;
-            if (abs(qa) > 1e-6 * scale) {
-              float disc = qb * qb - 4.0 * qa * qc;
-              if (disc >= 0.0) {
-                float q = -0.5 * (qb + (qb >= 0.0 ? sqrt(disc) : -sqrt(disc)));
-                r0 = q / qa;
-                if (q != 0.0) r1 = qc / q;
+            vec4 top = max(lo, hi);
+            if (!started || max(max(top.x, top.y), max(top.z, top.w)) > best) {
+              float h = tb - ta;
+              float v0 = trilinearCell(u0 + ta * p1 - c0, lo, hi);
+              float v1 = trilinearCell(u0 + (ta + h / 3.0) * p1 - c0, lo, hi);
+              float v2 = trilinearCell(u0 + (ta + 2.0 * h / 3.0) * p1 - c0, lo, hi);
+              float v3 = trilinearCell(u0 + tb * p1 - c0, lo, hi);
+              if (!started) {
+                best = v0;
+                bestT = ta;
+                started = true;
               }
-            } else if (abs(qb) > 1e-6 * scale) {
-              r0 = -qc / qb;
+              float d1 = v1 - v0, d2 = v2 - 2.0 * v1 + v0, d3 = v3 - 3.0 * v2 + 3.0 * v1 - v0;
+              float qa = 0.5 * d3, qb = d2 - d3, qc = d1 - 0.5 * d2 + d3 / 3.0;
+              float scale = abs(qa) + abs(qb) + abs(qc);
+              float r0 = -1.0, r1 = -1.0;
+              if (abs(qa) > 1e-6 * scale) {
+                float disc = qb * qb - 4.0 * qa * qc;
+                if (disc >= 0.0) {
+                  float q = -0.5 * (qb + (qb >= 0.0 ? sqrt(disc) : -sqrt(disc)));
+                  r0 = q / qa;
+                  if (q != 0.0) r1 = qc / q;
+                }
+              } else if (abs(qb) > 1e-6 * scale) {
+                r0 = -qc / qb;
+              }
+              if (r0 > 0.0 && r0 < 3.0) {
+                float tr = ta + r0 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
+                if (vr > best) { best = vr; bestT = tr; }
+              }
+              if (r1 > 0.0 && r1 < 3.0) {
+                float tr = ta + r1 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
+                if (vr > best) { best = vr; bestT = tr; }
+              }
+              if (v3 > best) { best = v3; bestT = tb; }
             }
-            if (r0 > 0.0 && r0 < 3.0) {
-              float tr = ta + r0 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
-              if (vr > best) { best = vr; bestT = tr; }
-            }
-            if (r1 > 0.0 && r1 < 3.0) {
-              float tr = ta + r1 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
-              if (vr > best) { best = vr; bestT = tr; }
-            }
-            if (v3 > best) { best = v3; bestT = tb; }
             ta = tb;
           }
           if (tb >= tEnd) break;

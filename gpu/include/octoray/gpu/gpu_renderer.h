@@ -70,7 +70,7 @@ struct FrameStats {
   int64_t poolSlots = 0, poolSlotsUsed = 0;
   std::size_t poolBytes = 0, poolBytesUsed = 0;
   // With RaycastOptions::stats only:
-  double samplesPerPixel = 0;       // classified samples (MIP: cells evaluated) per covered pixel
+  double samplesPerPixel = 0;       // classified samples (MIP: trilinear cells visited) per covered pixel
   double contributingPerPixel = 0;  // samples with non-zero opacity (iso: hits)
   double leavesPerPixel = 0;        // leaves visited with non-zero length, empty ones included
   int64_t bricksTouched = 0;        // data leaves any ray sampled
