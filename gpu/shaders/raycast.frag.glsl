@@ -49,6 +49,10 @@ uniform float uGradientScale;
 #endif
 
 uniform sampler1D uTf;        // rgb, extinction -ln(1 - alpha) per unit distance
+#ifdef CELL_SKIPPING
+uniform sampler3D uCellRange; // (min, max) texel value per CELL_VOXELS^3 cell of every slot
+uniform sampler1D uTfNonZero; // entry i: uTf entries below i with opacity
+#endif
 uniform vec2 uTfMap;          // tf coordinate = value * uTfMap.x + uTfMap.y
 uniform int uColorPoints, uOpacityPoints, uGradientPoints;
 
@@ -90,12 +94,30 @@ vec4 classifyExact(float value) {
 }
 
 // ---- the brick pool ----
-vec3 slotOrigin(uint slot) {
+vec3 slotIndex(uint slot) {
   uint sx = slot % uint(uSlotGrid.x);
   uint sy = (slot / uint(uSlotGrid.x)) % uint(uSlotGrid.y / uSlotGrid.x);
   uint sz = slot / uint(uSlotGrid.y);
-  return vec3(sx, sy, sz) * float(BRICK_SIZE + 2 * BORDER);
+  return vec3(sx, sy, sz);
 }
+
+vec3 slotOrigin(uint slot) { return slotIndex(slot) * float(BRICK_SIZE + 2 * BORDER); }
+
+#ifdef CELL_SKIPPING
+const int kCells = BRICK_SIZE / CELL_VOXELS;
+
+// True when no sample inside `cell` of the slot's brick can have opacity: the uTf entries
+// that linear filtering may read for values in the cell's range (one more on each side for
+// rounding) are all transparent.
+bool cellTransparent(uint slot, vec3 cell) {
+  vec2 range = texelFetch(uCellRange, ivec3(slotIndex(slot) * float(kCells) + cell), 0).rg;
+  vec2 c = (range * uValueScale + uValueOffset) * uTfMap.x + uTfMap.y;
+  float lo = min(c.x, c.y) * float(TF_TABLE_SIZE) - 0.5, hi = max(c.x, c.y) * float(TF_TABLE_SIZE) - 0.5;
+  int first = clamp(int(floor(lo)) - 1, 0, TF_TABLE_SIZE - 1);
+  int last = clamp(int(floor(hi)) + 2, 0, TF_TABLE_SIZE - 1);
+  return texelFetch(uTfNonZero, last + 1, 0).r == texelFetch(uTfNonZero, first, 0).r;
+}
+#endif
 
 float valueAt(vec3 texel) {
   return texture(uPool, texel * uPoolInvSize).r * uValueScale + uValueOffset;
@@ -260,14 +282,46 @@ void main() {
       int m = 1 << levelsUp;  // fine steps per sample at this leaf's level (§5.3)
 
 #ifdef MODE_DVR
+#ifdef CELL_SKIPPING
+      // The leaf's brick in its own voxels: x(t) = b0 + t * b1, voxel centres at i + 0.5.
+      vec3 b0 = (qo - boxMin) * texelsPerQ, b1 = p1;
+      int kLimit = k0;  // samples below kLimit lie in a cell known to hold some opacity
+#else
+      int kLimit = k1;
+#endif
       int k = k0;
       while (k < k1) {
+#ifdef CELL_SKIPPING
+        // Cell by cell (CELL_VOXELS^3 voxels of the brick): skip those whose values all map
+        // to zero opacity; stop at the first that does not, and sample up to its exit. The
+        // first sample at or past an exit is found taking every group as full, which can
+        // only keep a sample, never drop one.
+        while (k >= kLimit && k < k1) {
+          float tk = t0 + (float(k) + 0.5 * float(min(m, k1 - k))) * delta;
+          vec3 cell = clamp(floor((b0 + tk * b1) / float(CELL_VOXELS)), vec3(0.0), vec3(float(kCells - 1)));
+          float exitT = tEnd;
+          for (int a = 0; a < 3; ++a) {
+            if (b1[a] != 0.0) {
+              float plane = (cell[a] + (b1[a] > 0.0 ? 1.0 : 0.0)) * float(CELL_VOXELS);
+              exitT = min(exitT, (plane - b0[a]) / b1[a]);
+            }
+          }
+          int next = k + max(int(ceil(((exitT - t0) / delta - float(k) - 0.5 * float(m)) / float(m))), 1) * m;
+          if (exitT > tk && cellTransparent(slot, cell)) {
+            k = next;
+          } else {
+            kLimit = next;
+          }
+        }
+        if (k >= k1) break;
+#endif
         // The cheap loop: one fetch and one classification per sample until a sample has
         // opacity (shading work stays out of it: llvmpipe runs pixels in lock-step).
         vec4 c = vec4(0.0);
         float g = 1.0, ts = 0.0;
         vec3 texel = vec3(0.0);
         float value = 0.0;
+        int kEnd = min(kLimit, k1);
         for (;;) {
           g = float(min(m, k1 - k));
           ts = t0 + (float(k) + 0.5 * g) * delta;
@@ -279,9 +333,9 @@ void main() {
 #endif
           if (c.a > 0.0) break;
           k += m;
-          if (k >= k1) break;
+          if (k >= kEnd) break;
         }
-        if (!(c.a > 0.0)) break;
+        if (!(c.a > 0.0)) continue;  // no opacity up to kEnd
         float extinction = c.a;  // -ln(1 - alpha) per unit distance
 #ifdef NEEDS_GRADIENT
         vec3 grad = gradientAt(texel, levelScale);

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <numeric>
 
 #include "octoray/dicom/error.h"
@@ -20,6 +21,42 @@ namespace {
 constexpr int kTfTableSize = 8192;
 constexpr double kDegrees = 3.14159265358979323846 / 180.0;
 constexpr std::size_t kUploadBatch = 256;
+constexpr int kCellVoxels = 8;  // edge of the cells a brick's value range is kept for
+
+// Per cell of kCellVoxels^3 voxels of a brick, the smallest and largest stored sample that a
+// trilinear sample inside the cell can read (the cell's voxels and one more on each side,
+// from the brick's border), as (min, max) pairs in x-fastest cell order.
+template <typename T>
+std::vector<T> cellRanges(const std::vector<T>& samples, int edge, int brickSize, int border) {
+  const int cells = brickSize / kCellVoxels;
+  std::vector<T> ranges(static_cast<std::size_t>(cells) * cells * cells * 2);
+  const auto at = [&](int x, int y, int z) {
+    return samples[static_cast<std::size_t>(x) +
+                   static_cast<std::size_t>(edge) * (static_cast<std::size_t>(y) +
+                                                     static_cast<std::size_t>(edge) * static_cast<std::size_t>(z))];
+  };
+  std::size_t out = 0;
+  for (int cz = 0; cz < cells; ++cz) {
+    for (int cy = 0; cy < cells; ++cy) {
+      for (int cx = 0; cx < cells; ++cx) {
+        T lo = at(border + cx * kCellVoxels, border + cy * kCellVoxels, border + cz * kCellVoxels);
+        T hi = lo;
+        for (int z = border + cz * kCellVoxels - 1; z <= border + (cz + 1) * kCellVoxels; ++z) {
+          for (int y = border + cy * kCellVoxels - 1; y <= border + (cy + 1) * kCellVoxels; ++y) {
+            for (int x = border + cx * kCellVoxels - 1; x <= border + (cx + 1) * kCellVoxels; ++x) {
+              const T v = at(x, y, z);
+              lo = std::min(lo, v);
+              hi = std::max(hi, v);
+            }
+          }
+        }
+        ranges[out++] = lo;
+        ranges[out++] = hi;
+      }
+    }
+  }
+  return ranges;
+}
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -74,6 +111,9 @@ struct GpuRenderer::Impl {
   GlTexture pool{GL_TEXTURE_3D};
   GlTexture gradientPool{GL_TEXTURE_3D};
   GlTexture tfTable{GL_TEXTURE_1D};
+  GlTexture cellRange{GL_TEXTURE_3D};   // (min, max) per cell of every slot
+  GlTexture tfNonZero{GL_TEXTURE_1D};   // entries of tfTable with opacity, counted below i
+  int cellsPerBrick = 0;
   GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer;
   GlVertexArray vao;
   GlFramebuffer fbo;
@@ -187,6 +227,16 @@ void GpuRenderer::Impl::allocatePool() {
     glTextureParameteri(tex, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
   }
   if (hasGradientPool) glTextureStorage3D(gradientPool.id(), 1, GL_RGBA8, w, h, d);
+  cellsPerBrick = layout.brickSize() / kCellVoxels;
+  glTextureStorage3D(cellRange.id(), 1, floatPool ? GL_RG32F : GL_RG16,
+                     static_cast<GLsizei>(slotGrid[0] * cellsPerBrick),
+                     static_cast<GLsizei>(slotGrid[1] * cellsPerBrick),
+                     static_cast<GLsizei>(slotGrid[2] * cellsPerBrick));
+  glTextureStorage1D(tfNonZero.id(), 1, GL_R32F, kTfTableSize + 1);
+  for (GLuint tex : {cellRange.id(), tfNonZero.id()}) {
+    glTextureParameteri(tex, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(tex, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  }
   glTextureStorage1D(tfTable.id(), 1, GL_RGBA32F, kTfTableSize);
   glTextureParameteri(tfTable.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTextureParameteri(tfTable.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
@@ -234,6 +284,7 @@ std::vector<std::string> GpuRenderer::Impl::defines(const transfer::TransferFunc
   switch (o.mode) {
     case RaycastMode::Dvr: {
       d.emplace_back("MODE_DVR");
+      if (o.cellSkipping) d.emplace_back("CELL_SKIPPING");
       if (shade) d.emplace_back("SHADING");
       const bool gradientOpacity = o.gradientOpacity && !gradientOpacityIsIdentity(tf);
       if (gradientOpacity) d.emplace_back("GRADIENT_OPACITY");
@@ -255,6 +306,8 @@ std::vector<std::string> GpuRenderer::Impl::defines(const transfer::TransferFunc
   }
   d.push_back(fmt::format("BRICK_SIZE {}", layout.brickSize()));
   d.push_back(fmt::format("BORDER {}", layout.border()));
+  d.push_back(fmt::format("CELL_VOXELS {}", kCellVoxels));
+  d.push_back(fmt::format("TF_TABLE_SIZE {}", kTfTableSize));
   // Central differences of +-1 voxel need two border samples; with one, +-0.5 voxel stays
   // inside the brick.
   d.push_back(layout.border() >= 2 ? "GRADIENT_DELTA 1.0" : "GRADIENT_DELTA 0.5");
@@ -320,12 +373,21 @@ std::vector<CutLeaf> GpuRenderer::Impl::residentCut(const WorkingSet& ws, FrameS
   for (std::size_t first = 0; first < missing.size(); first += kUploadBatch) {
     const std::size_t count = std::min(kUploadBatch, missing.size() - first);
     std::vector<volume::Brick> bricks(count);
+    std::vector<std::vector<uint16_t>> ranges16(count);
+    std::vector<std::vector<float>> ranges32(count);
     std::exception_ptr failure;
+    std::mutex failureMutex;
     tbb::parallel_for(std::size_t{0}, count, [&](std::size_t i) {
       try {
         bricks[i] = store.readBrick(missing[first + i].first);
+        if (floatPool) {
+          ranges32[i] = cellRanges(bricks[i].f32, edge, layout.brickSize(), layout.border());
+        } else {
+          ranges16[i] = cellRanges(bricks[i].u16, edge, layout.brickSize(), layout.border());
+        }
       } catch (...) {
-        failure = std::current_exception();
+        const std::lock_guard lock(failureMutex);
+        if (!failure) failure = std::current_exception();
       }
     });
     if (failure) {
@@ -351,6 +413,15 @@ std::vector<CutLeaf> GpuRenderer::Impl::residentCut(const WorkingSet& ws, FrameS
       if (hasGradientPool) {
         glTextureSubImage3D(gradientPool.id(), 0, x, y, z, edge, edge, edge, GL_RGBA,
                             GL_UNSIGNED_BYTE, b.gradients.data());
+      }
+      const GLint cx = x / edge * cellsPerBrick, cy = y / edge * cellsPerBrick,
+                  cz = z / edge * cellsPerBrick;
+      if (floatPool) {
+        glTextureSubImage3D(cellRange.id(), 0, cx, cy, cz, cellsPerBrick, cellsPerBrick,
+                            cellsPerBrick, GL_RG, GL_FLOAT, ranges32[i].data());
+      } else {
+        glTextureSubImage3D(cellRange.id(), 0, cx, cy, cz, cellsPerBrick, cellsPerBrick,
+                            cellsPerBrick, GL_RG, GL_UNSIGNED_SHORT, ranges16[i].data());
       }
     }
   }
@@ -378,6 +449,13 @@ void GpuRenderer::Impl::uploadTransferFunction(const transfer::TransferFunction&
     e[3] = alpha < 1.0 ? static_cast<float>(-std::log1p(-alpha)) : 1e4f;
   }
   glTextureSubImage1D(tfTable.id(), 0, 0, kTfTableSize, GL_RGBA, GL_FLOAT, table.data());
+  // nonZero[i]: entries below i with opacity (exact integers in float up to 2^24).
+  std::vector<float> nonZero(static_cast<std::size_t>(kTfTableSize) + 1, 0.0f);
+  for (int i = 0; i < kTfTableSize; ++i) {
+    nonZero[static_cast<std::size_t>(i) + 1] =
+        nonZero[static_cast<std::size_t>(i)] + (table[static_cast<std::size_t>(i) * 4 + 3] > 0 ? 1.0f : 0.0f);
+  }
+  glTextureSubImage1D(tfNonZero.id(), 0, 0, kTfTableSize + 1, GL_RED, GL_FLOAT, nonZero.data());
 
   std::vector<float> points;
   for (const transfer::ColorPoint& p : tf.color) {
@@ -605,6 +683,10 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
     glBindTextureUnit(2, im.gradientPool.id());
     glUniform1i(prog.uniform("uGradientPool"), 2);
   }
+  glBindTextureUnit(3, im.cellRange.id());
+  glUniform1i(prog.uniform("uCellRange"), 3);
+  glBindTextureUnit(4, im.tfNonZero.id());
+  glUniform1i(prog.uniform("uTfNonZero"), 4);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, im.nodeBuffer.id());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, im.leafBuffer.id());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, im.tfPointBuffer.id());

@@ -51,7 +51,7 @@ struct Arguments {
   std::optional<double> iso;
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
   bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
-  bool gradientPool = false;
+  bool gradientPool = false, noCellSkipping = false;
   double lodPixels = 1.0, orbitDegrees = 0;
   int frames = 1, threads = 0;
   std::size_t poolMib = 1024;
@@ -273,6 +273,7 @@ int runGpu(const Arguments& a) {
     throw Error("", fmt::format("--lod-pixels {}: must be >= 0", a.lodPixels));
   }
   options.lodPixels = a.lodPixels;
+  options.cellSkipping = !a.noCellSkipping;
 
   auto start = std::chrono::steady_clock::now();
   std::optional<TemporaryStore> temporary;
@@ -435,6 +436,8 @@ int main(int argc, char** argv) {
   app.add_flag("--gradient-pool", a.gradientPool,
                "GPU: shade from the store's precomputed gradients (import with --gradients)");
   app.add_option("--boundary", a.boundary, "GPU: boundary enhancement KC,KS,KE");
+  app.add_flag("--no-cell-skipping", a.noCellSkipping,
+               "GPU: sample transparent 8^3 cells of bricks too (same picture; to measure)");
   app.add_option("--silhouette", a.silhouette,
                  "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")
@@ -448,7 +451,8 @@ int main(int argc, char** argv) {
     if (!a.camera.empty() && size->count() == 0) a.size.clear();
     if (a.reference) {
       for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
-                                  "--gradient-pool", "--boundary", "--silhouette"}) {
+                                  "--gradient-pool", "--boundary", "--silhouette",
+                                  "--no-cell-skipping"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

@@ -52,6 +52,9 @@ struct RaycastOptions {
   double isoValue = 0;
   double lodPixels = 1.0;          // working-set refinement target; 0: finest level everywhere
   bool stats = false;              // per-pixel counters (a separate variant)
+  // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
+  // (exact: the picture is bit for bit the same; off only to measure what it saves).
+  bool cellSkipping = true;
 };
 
 struct RendererConfig {
