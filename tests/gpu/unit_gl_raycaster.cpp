@@ -274,6 +274,65 @@ TEST_F(RaycasterTest, RampCrossesBricksAndLevelsWithoutSeams) {
   }
 }
 
+// Rays that run along brick faces (an orthographic view down the k axis of the sheared grid,
+// pixel rows and columns dense enough that many rays lie within half a voxel of a face) are
+// where a seam would show: their largest error against the reference must be no larger than
+// that of the other rays (a missing or shifted border shows there as a step of the ramp's
+// colour, a wrong gradient at the face as a line of different shading).
+TEST_F(RaycasterTest, ErrorAtBrickFacesIsNoLargerThanElsewhere) {
+  OCTORAY_GL_TEST_PREAMBLE();
+  const volume::StoreReader store(rampStore().string());
+  const Mat4 patientFromIndex = store.patientFromIndex();
+  const Mat4 indexFromPatient = patientFromIndex.inverseAffine();
+  const volume::Index3 dims = store.layout().levelDims(store.layout().leafLevel());
+  const Vec3 centre = patientFromIndex.transformPoint(
+      {0.5 * (dims[0] - 1), 0.5 * (dims[1] - 1), 0.5 * (dims[2] - 1)});
+  const Vec3 along = normalize(patientFromIndex.column(2));
+  Camera camera;
+  camera.projection = Projection::Orthographic;
+  camera.eye = centre - 200.0 * along;
+  camera.target = centre;
+  camera.up = patientFromIndex.column(1);
+  camera.orthoHeightMm = 40.0;
+  camera.width = camera.height = 160;
+  const int brick = store.layout().brickSize();
+  for (const bool shade : {false, true}) {
+    RaycastOptions options;
+    options.lodPixels = 0;
+    const Pair p = renderBoth(store, camera, rampTf(shade), options);
+    double worstAtFaces = 0, worstElsewhere = 0;
+    int64_t facePixels = 0;
+    for (int y = 0; y < camera.height; ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const Vec3 index = indexFromPatient.transformPoint(camera.ray(x + 0.5, y + 0.5).origin);
+        bool atFace = false;
+        for (const double c : {index.x, index.y}) {
+          // Brick faces lie at b * B - 0.5 in index space (voxel i owns [i - 0.5, i + 0.5]).
+          const double face = std::round((c + 0.5) / brick) * brick - 0.5;
+          atFace = atFace || std::abs(c - face) < 0.5;
+        }
+        const std::size_t i = static_cast<std::size_t>(y * camera.width + x) * 4;
+        double error = 0;
+        for (int ch = 0; ch < 4; ++ch) {
+          error = std::max(error, static_cast<double>(std::abs(p.gpu.image.rgba[i + ch] -
+                                                               p.reference.image.rgba[i + ch])));
+        }
+        if (p.reference.image.rgba[i + 3] <= 0) continue;  // outside the volume
+        (atFace ? worstAtFaces : worstElsewhere) = std::max(atFace ? worstAtFaces : worstElsewhere, error);
+        facePixels += atFace ? 1 : 0;
+      }
+    }
+    EXPECT_GT(facePixels, 500) << "the view should put many rays along brick faces";
+    // Both are single-precision noise (~1e-4) on a correct renderer; differences below half an
+    // 8-bit display step cannot show, so that is the floor of "no larger".
+    EXPECT_LE(worstAtFaces, std::max(worstElsewhere, 0.5 / 255))
+        << (shade ? "shaded" : "unshaded") << ": a seam (elsewhere " << worstElsewhere << ")";
+    std::printf("%s: largest error at brick faces %.3g, elsewhere %.3g (%lld face pixels)\n",
+                shade ? "shaded" : "unshaded", worstAtFaces, worstElsewhere,
+                static_cast<long long>(facePixels));
+  }
+}
+
 // Coarser working sets: the picture degrades gracefully (no holes, no NaN), takes fewer
 // bricks, and every brick still sits where it belongs (close to the full-resolution picture).
 TEST_F(RaycasterTest, CoarserWorkingSetsStayCloseAndUseFewerBricks) {
