@@ -6,6 +6,7 @@
 # (octoray-compare: PSNR, SSIM, RMSE, max error over premultiplied RGB):
 #   octoray GPU, lod 1 px    octoray-render --gpu --lod-pixels 1   (what a user sees)
 #   octoray GPU, full res    octoray-render --gpu --lod-pixels 0   (the accuracy row)
+#   octoray GPU, sampled MIP octoray-render --gpu --mip sampled    (MIP mode only)
 #   VTK GPU                  vtk-peer --mapper gpu  (vtkGPUVolumeRayCastMapper, same GL driver)
 #   VTK CPU                  vtk-peer --mapper cpu  (vtkFixedPointVolumeRayCastMapper)
 # Scenes: the 140-slice 1 mm Philips head (dcm_qa_ct) and a 512^3 octoray-phantom, both
@@ -159,6 +160,20 @@ for scene in $scenes; do
         row "$scene" "$mode" "$shading" "$label" - - "failed (see $name.err, $name.cmp.err)" "${cmd[@]}"
       fi
     done
+
+    # MIP also as other raycasters do it: the maximum at the step's samples (--mip sampled).
+    if [[ $mode == mip && $has_gpu == 1 ]]; then
+      name=octoray-gpu-mip-sampled
+      label="octoray GPU, sampled MIP"
+      cmd=("$bin/octoray-render" "$store" --gpu --lod-pixels 1 --mip sampled --frames "$frames"
+           --orbit 0 --camera "$camera" -o "$dir/$name.png" --exr "$dir/$name.exr" "${tf_args[@]}"
+           "${margs[@]}" "${step_args[@]}" --json)
+      if timed "$dir" "$name" "${cmd[@]}" && compare "$dir" "$name"; then
+        row "$scene" "$mode" "$shading" "$label" "$dir/$name.json" "$dir/$name.cmp.json" "" "${cmd[@]}"
+      else
+        row "$scene" "$mode" "$shading" "$label" - - "failed (see $name.err, $name.cmp.err)" "${cmd[@]}"
+      fi
+    fi
 
     # VTK's two mappers with the same volume, TF, camera and step.
     for mapper in gpu cpu; do

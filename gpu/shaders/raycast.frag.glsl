@@ -442,6 +442,24 @@ void main() {
       // texel-centre plane; on each piece the interpolant is a cubic in t, evaluated from the
       // cell's 8 texels (no filtering hardware involved) at the ends and its critical points.
       float leafMax = uintBitsToFloat(leaves[record + 7u]);
+#ifdef MIP_SAMPLED
+      // The sampled maximum (MipMethod::Sampled): the interpolant at the samples of the
+      // leaf's step only, as other raycasters do; never above the exact maximum.
+      if (!started || leafMax > best * uValueScale + uValueOffset) {
+        for (int k = k0; k < k1; k += m) {
+          float ts = t0 + (float(k) + 0.5 * float(min(m, k1 - k))) * delta;
+          float v = texture(uPool, (p0 + ts * p1) * uPoolInvSize).r;
+#ifdef STATS
+          stats.x += 1.0;
+#endif
+          if (!started || v > best) {
+            best = v;
+            bestT = ts;
+            started = true;
+          }
+        }
+      }
+#else
       if (!started || leafMax > best * uValueScale + uValueOffset) {
         float ta = t;
         vec3 u0 = p0 - 0.5;  // cell space: texel centres at integers
@@ -521,6 +539,7 @@ void main() {
           cell[a] += p1[a] > 0.0 ? 1.0 : -1.0;
         }
       }
+#endif  // MIP_SAMPLED
 #endif  // MODE_MIP
     }
     if (face < 0 || !(tExit < t1) || done) break;

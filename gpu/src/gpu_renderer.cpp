@@ -302,6 +302,7 @@ std::vector<std::string> GpuRenderer::Impl::defines(const transfer::TransferFunc
       break;
     case RaycastMode::Mip:
       d.emplace_back("MODE_MIP");
+      if (o.mip == RaycastOptions::MipMethod::Sampled) d.emplace_back("MIP_SAMPLED");
       break;
   }
   d.push_back(fmt::format("BRICK_SIZE {}", layout.brickSize()));

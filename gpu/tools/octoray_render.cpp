@@ -52,6 +52,7 @@ struct Arguments {
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
   bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
   bool gradientPool = false, noCellSkipping = false;
+  std::string mip = "exact";
   double lodPixels = 1.0, orbitDegrees = 0;
   int frames = 1, threads = 0;
   std::size_t poolMib = 1024;
@@ -274,6 +275,8 @@ int runGpu(const Arguments& a) {
   }
   options.lodPixels = a.lodPixels;
   options.cellSkipping = !a.noCellSkipping;
+  options.mip = a.mip == "sampled" ? gpu::RaycastOptions::MipMethod::Sampled
+                                   : gpu::RaycastOptions::MipMethod::Exact;
 
   auto start = std::chrono::steady_clock::now();
   std::optional<TemporaryStore> temporary;
@@ -436,6 +439,11 @@ int main(int argc, char** argv) {
   app.add_flag("--gradient-pool", a.gradientPool,
                "GPU: shade from the store's precomputed gradients (import with --gradients)");
   app.add_option("--boundary", a.boundary, "GPU: boundary enhancement KC,KS,KE");
+  app.add_option("--mip", a.mip,
+                 "GPU, --mode mip: exact (the interpolant's maximum along the ray, as the "
+                 "reference) or sampled (its maximum at the step's samples; faster)")
+      ->check(CLI::IsMember({"exact", "sampled"}))
+      ->capture_default_str();
   app.add_flag("--no-cell-skipping", a.noCellSkipping,
                "GPU: sample transparent 8^3 cells of bricks too (same picture; to measure)");
   app.add_option("--silhouette", a.silhouette,
@@ -452,7 +460,7 @@ int main(int argc, char** argv) {
     if (a.reference) {
       for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
                                   "--gradient-pool", "--boundary", "--silhouette",
-                                  "--no-cell-skipping"}) {
+                                  "--no-cell-skipping", "--mip"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

@@ -50,6 +50,10 @@ struct RaycastOptions {
   Enhancement boundary;            // alpha *= kC + kS |grad|^kE
   Enhancement silhouette;          // view-dependent transparency: alpha *= kC + kS (1 - |n.v|)^kE
   double isoValue = 0;
+  // MIP: Exact, the maximum of the trilinear interpolant along the whole chord (the
+  // reference's; equal to it at 16 bits); Sampled, its maximum over the step's samples only
+  // (faster, never higher; what other raycasters show).
+  enum class MipMethod { Exact, Sampled } mip = MipMethod::Exact;
   double lodPixels = 1.0;          // working-set refinement target; 0: finest level everywhere
   bool stats = false;              // per-pixel counters (a separate variant)
   // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
