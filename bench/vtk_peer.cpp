@@ -272,13 +272,6 @@ void applyCamera(const gpu::Camera& camera, vtkCamera* vtk) {
   }
 }
 
-// `v` turned by `degrees` about the unit `axis` (Rodrigues).
-Vec3 rotate(Vec3 v, Vec3 axis, double degrees) {
-  const double angle = degrees * 3.14159265358979323846 / 180.0;
-  const double c = std::cos(angle), s = std::sin(angle);
-  return c * v + s * cross(axis, v) + (dot(axis, v) * (1.0 - c)) * axis;
-}
-
 // The camera of frame `frame`: the orbit flags with the azimuth advanced by frame x orbit
 // degrees, or a --camera turned by as much about its up vector through the volume's centre.
 gpu::Camera frameCamera(const Arguments& a, const gpu::VolumeDomain& domain,
@@ -296,12 +289,7 @@ gpu::Camera frameCamera(const Arguments& a, const gpu::VolumeDomain& domain,
     orbit.height = first.height;
     return gpu::orbitCamera(domain, orbit);
   }
-  gpu::Camera camera = first;
-  const Vec3 centre = domain.centrePatient();
-  const Vec3 axis = normalize(first.up);
-  camera.eye = centre + rotate(first.eye - centre, axis, turn);
-  camera.target = centre + rotate(first.target - centre, axis, turn);
-  return camera;
+  return gpu::turnAboutCentre(first, domain.centrePatient(), turn);
 }
 
 // The window's RGBA as our Image: float in [0, 1], row 0 = top (VTK's row 0 is the bottom).
@@ -343,13 +331,6 @@ std::string glRenderer(vtkRenderWindow* window) {
     return value;
   }
   return "unknown";
-}
-
-double median(std::vector<double> values) {
-  if (values.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(values.begin(), values.end());
-  const std::size_t n = values.size();
-  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
 }
 
 int run(const Arguments& a) {
@@ -430,9 +411,7 @@ int run(const Arguments& a) {
 
   const std::string mapperName =
       a.mapper == "gpu" ? "vtkGPUVolumeRayCastMapper" : "vtkFixedPointVolumeRayCastMapper";
-  const std::vector<double> steady =
-      framesMs.size() > 1 ? std::vector<double>(framesMs.begin() + 1, framesMs.end()) : framesMs;
-  const double medianMs = median(steady);
+  const double medianMs = cli::medianOfSteadyFrames(framesMs);
   if (a.json) {
     const nlohmann::json report = {
         {"renderer", "vtk"},
@@ -451,7 +430,7 @@ int run(const Arguments& a) {
         {"framesMs", framesMs},
         {"firstFrameMs", framesMs.front()},
         {"medianMs", medianMs},
-        {"medianOf", framesMs.size() > 1 ? "frames after the first" : "the only frame"},
+        {"medianOf", cli::steadyFramesDescription(framesMs.size())},
         {"loadSeconds", loadSeconds},
         {"camera", gpu::cameraToJson(camera)},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};

@@ -114,6 +114,18 @@ double VolumeDomain::boundingRadiusMm() const {
   return radius;
 }
 
+Camera turnAboutCentre(const Camera& camera, Vec3 centre, double degrees) {
+  // Rodrigues' rotation about the unit axis.
+  const Vec3 axis = normalize(camera.up);
+  const double angle = degrees * 3.14159265358979323846 / 180.0;
+  const double c = std::cos(angle), s = std::sin(angle);
+  const auto turn = [&](Vec3 v) { return c * v + s * cross(axis, v) + (dot(axis, v) * (1.0 - c)) * axis; };
+  Camera turned = camera;
+  turned.eye = centre + turn(camera.eye - centre);
+  turned.target = centre + turn(camera.target - centre);
+  return turned;
+}
+
 Camera orbitCamera(const VolumeDomain& domain, const OrbitParameters& orbit) {
   if (!(orbit.zoom > 0 && std::isfinite(orbit.zoom))) {
     throw Error("", fmt::format("zoom {} must be positive and finite", orbit.zoom));

@@ -138,13 +138,6 @@ gpu::Camera makeCamera(const Arguments& a, const gpu::VolumeDomain& domain) {
   return camera;
 }
 
-// v turned by `degrees` about the unit axis (Rodrigues).
-Vec3 rotate(Vec3 v, Vec3 axis, double degrees) {
-  const double r = degrees * 3.14159265358979323846 / 180.0;
-  const double c = std::cos(r), s = std::sin(r);
-  return v * c + cross(axis, v) * s + axis * (dot(axis, v) * (1 - c));
-}
-
 // Frame `frame` of the timing loop: the camera turned frame * orbitDegrees about the volume's
 // centre (the orbit's azimuth, or the camera's up axis for a --camera file).
 gpu::Camera frameCamera(const Arguments& a, const gpu::VolumeDomain& domain,
@@ -159,18 +152,7 @@ gpu::Camera frameCamera(const Arguments& a, const gpu::VolumeDomain& domain,
     camera.height = first.height;
     return camera;
   }
-  gpu::Camera camera = first;
-  const Vec3 centre = domain.centrePatient();
-  const Vec3 axis = normalize(first.up);
-  camera.eye = centre + rotate(first.eye - centre, axis, turn);
-  camera.target = centre + rotate(first.target - centre, axis, turn);
-  return camera;
-}
-
-double median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  const std::size_t n = values.size();
-  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+  return gpu::turnAboutCentre(first, domain.centrePatient(), turn);
 }
 
 gpu::Enhancement parseEnhancement(const std::string& text, const char* option) {
@@ -332,9 +314,7 @@ int runGpu(const Arguments& a) {
     frames.push_back(std::move(record));
     if (f == 0) last = std::move(frame);  // the image written is frame 0's view
   }
-  const std::vector<double> steady =
-      framesMs.size() > 1 ? std::vector<double>(framesMs.begin() + 1, framesMs.end()) : framesMs;
-  const double medianMs = median(steady);
+  const double medianMs = cli::medianOfSteadyFrames(framesMs);
 
   gpu::writePng(last.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
   if (!a.exr.empty()) gpu::writeExr(last.image, a.exr);
@@ -356,7 +336,7 @@ int runGpu(const Arguments& a) {
         {"timingMs", {{"load", loadMs}, {"setup", setupMs}}},
         {"firstFrameMs", framesMs.front()},
         {"medianMs", medianMs},
-        {"medianOf", framesMs.size() > 1 ? "frames after the first" : "the only frame"},
+        {"medianOf", cli::steadyFramesDescription(framesMs.size())},
         {"frames", frames},
         {"camera", gpu::cameraToJson(camera)},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};

@@ -176,3 +176,31 @@ TEST(ImageMetrics, CompareCountsAndMeasures) {
 
 }  // namespace
 }  // namespace octoray::test
+
+namespace octoray::gpu {
+namespace {
+
+// --orbit for cameras from a file: a quarter turn about the up vector (+z) through the centre
+// takes an eye in front (−y) to the side (+x), keeps distances, target offsets and the up
+// vector, and a full turn comes back.
+TEST(TurnAboutCentre, QuarterAndFullTurns) {
+  Camera camera;
+  camera.eye = {10, -90, 5};
+  camera.target = {10, 0, 5};
+  camera.up = {0, 0, 1};
+  const Vec3 centre{10, 0, 0};
+  const Camera quarter = turnAboutCentre(camera, centre, 90);
+  EXPECT_NEAR(quarter.eye.x, 100, 1e-9);
+  EXPECT_NEAR(quarter.eye.y, 0, 1e-9);
+  EXPECT_NEAR(quarter.eye.z, 5, 1e-9);
+  EXPECT_NEAR(quarter.target.x, 10, 1e-9);
+  EXPECT_NEAR(quarter.target.y, 0, 1e-9);
+  EXPECT_EQ(quarter.up.z, 1);
+  const Camera full = turnAboutCentre(camera, centre, 360);
+  EXPECT_NEAR(full.eye.x, camera.eye.x, 1e-9);
+  EXPECT_NEAR(full.eye.y, camera.eye.y, 1e-9);
+  EXPECT_NEAR(full.eye.z, camera.eye.z, 1e-9);
+}
+
+}  // namespace
+}  // namespace octoray::gpu

@@ -2,10 +2,12 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <limits>
 #include <new>
 
 #include <fmt/format.h>
@@ -74,6 +76,18 @@ ProgressBar::ProgressBar(std::string label)
       active_(isatty(STDOUT_FILENO) && isatty(STDERR_FILENO)),
       start_(std::chrono::steady_clock::now()),
       lastDraw_(start_) {}
+
+double medianOfSteadyFrames(const std::vector<double>& framesMs) {
+  if (framesMs.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::vector<double> v(framesMs.size() > 1 ? framesMs.begin() + 1 : framesMs.begin(), framesMs.end());
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 == 1 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+const char* steadyFramesDescription(std::size_t frames) {
+  return frames > 1 ? "frames after the first" : "the only frame";
+}
 
 ProgressBar::~ProgressBar() { finish(); }
 

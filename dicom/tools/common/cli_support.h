@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 namespace octoray::cli {
 
@@ -20,6 +21,11 @@ int runTool(const char* toolName, const std::function<int()>& body);
 std::array<int64_t, 3> parseDims(const std::string& text, const char* option);
 // "0.5,0.5,1.25": three positive finite numbers separated by ','.
 std::array<double, 3> parseTriple(const std::string& text, const char* option);
+
+// The timing loops' median: of the frames after the first (which uploads data and compiles
+// shaders), or of the only frame; and the words that say which. NaN for no frames.
+double medianOfSteadyFrames(const std::vector<double>& framesMs);
+const char* steadyFramesDescription(std::size_t frames);
 
 // A one-line progress bar with rate and ETA on stderr, active only when stdout and stderr are
 // terminals (scripts and tests see clean output).

@@ -81,6 +81,10 @@ struct OrbitParameters {
 // non-positive or non-finite zoom or a bad size.
 Camera orbitCamera(const VolumeDomain& domain, const OrbitParameters& orbit);
 
+// `camera` turned by `degrees` about the line through `centre` along its up vector (eye and
+// target move; the up vector stays): the timing loops' --orbit for cameras from a file.
+Camera turnAboutCentre(const Camera& camera, Vec3 centre, double degrees);
+
 // Camera JSON: {"projection": "perspective"|"orthographic", "eye": [x,y,z], "target": [...],
 // "up": [...], "fovYDegrees": f, "orthoHeightMm": h, "width": w, "height": h}; every field
 // required on load. Throws octoray::Error naming `path` and the field at fault.
