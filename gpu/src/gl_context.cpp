@@ -426,13 +426,27 @@ std::vector<std::string> GlContext::takeErrors() {
     errors.push_back(fmt::format("{} more GL debug messages dropped", log_->dropped));
     log_->dropped = 0;
   }
+  for (std::string& code : takeGlErrorCodes()) errors.push_back(std::move(code));
+  return errors;
+}
+
+std::vector<std::string> takeGlErrorCodes() {
+  std::vector<std::string> codes;
   // glGetError returns one recorded flag per call; a lost context may keep reporting.
   for (int i = 0; i < 16; ++i) {
     const GLenum code = glGetError();
     if (code == GL_NO_ERROR) break;
-    errors.push_back(glErrorName(code));
+    codes.push_back(glErrorName(code));
   }
-  return errors;
+  return codes;
+}
+
+void throwOnGlError(std::string_view where) {
+  const std::vector<std::string> codes = takeGlErrorCodes();
+  if (codes.empty()) return;
+  std::string list;
+  for (const std::string& code : codes) list += (list.empty() ? "" : ", ") + code;
+  throw Error("", fmt::format("{} while {}", list, where));
 }
 
 std::unique_ptr<GlContext> createHeadlessContext(const GlContextOptions& options) {

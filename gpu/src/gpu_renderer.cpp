@@ -12,6 +12,7 @@
 #include <numeric>
 
 #include "octoray/dicom/error.h"
+#include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gl_program.h"
 #include "octoray/gpu/spatial_index.h"
 
@@ -60,25 +61,6 @@ std::vector<T> cellRanges(const std::vector<T>& samples, int edge, int brickSize
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
-
-const char* glErrorName(GLenum e) {
-  switch (e) {
-    case GL_INVALID_ENUM: return "GL_INVALID_ENUM";
-    case GL_INVALID_VALUE: return "GL_INVALID_VALUE";
-    case GL_INVALID_OPERATION: return "GL_INVALID_OPERATION";
-    case GL_INVALID_FRAMEBUFFER_OPERATION: return "GL_INVALID_FRAMEBUFFER_OPERATION";
-    case GL_OUT_OF_MEMORY: return "GL_OUT_OF_MEMORY";
-    default: return "GL error";
-  }
-}
-
-void throwOnGlError(const char* where) {
-  std::string errors;
-  for (GLenum e = glGetError(); e != GL_NO_ERROR; e = glGetError()) {
-    errors += errors.empty() ? glErrorName(e) : fmt::format(", {}", glErrorName(e));
-  }
-  if (!errors.empty()) throw Error("", fmt::format("GPU raycaster: {} while {}", errors, where));
 }
 
 // True when the TF's gradient opacity changes nothing (no points, or every point 1).
@@ -152,6 +134,11 @@ struct GpuRenderer::Impl {
   void uploadTransferFunction(const transfer::TransferFunction& tf, const RaycastOptions& options,
                               int counts[3]);
   double stepMm(const RaycastOptions& options) const;
+  // The physical value range the TF table spans: the store's (the root's [min, max]).
+  std::pair<double, double> tfRange() const {
+    const volume::NodeRecord& root = store.node(0);
+    return {root.minValue, root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0};
+  }
 };
 
 GpuRenderer::Impl::RayUniforms GpuRenderer::Impl::rayUniforms(const Camera& camera) const {
@@ -241,7 +228,7 @@ void GpuRenderer::Impl::allocatePool() {
   glTextureParameteri(tfTable.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
   glTextureParameteri(tfTable.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTextureParameteri(tfTable.id(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-  throwOnGlError(fmt::format("allocating a {}x{}x{} brick pool", w, h, d).c_str());
+  throwOnGlError(fmt::format("allocating a {}x{}x{} brick pool", w, h, d));
 }
 
 void GpuRenderer::Impl::ensureTargets(int width, int height) {
@@ -434,10 +421,7 @@ std::vector<CutLeaf> GpuRenderer::Impl::residentCut(const WorkingSet& ws, FrameS
 
 void GpuRenderer::Impl::uploadTransferFunction(const transfer::TransferFunction& tf,
                                                const RaycastOptions& options, int counts[3]) {
-  // The table spans the store's value range (the root's [min, max]).
-  const volume::NodeRecord& root = store.node(0);
-  const double lo = root.minValue;
-  const double hi = root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0;
+  const auto [lo, hi] = tfRange();
   std::vector<float> table(static_cast<std::size_t>(kTfTableSize) * 4);
   for (int i = 0; i < kTfTableSize; ++i) {
     const double v = lo + (hi - lo) * i / (kTfTableSize - 1);
@@ -654,8 +638,7 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
   glUniform1f(prog.uniform("uValueScale"), static_cast<float>(s));
   glUniform1f(prog.uniform("uValueOffset"),
               static_cast<float>(im.floatPool ? 0.0 : im.store.header().valueOffset));
-  const volume::NodeRecord& root = im.store.node(0);
-  const double lo = root.minValue, hi = root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0;
+  const auto [lo, hi] = im.tfRange();
   const double n = kTfTableSize;
   glUniform2f(prog.uniform("uTfMap"), static_cast<float>((n - 1) / ((hi - lo) * n)),
               static_cast<float>((-lo * (n - 1) / (hi - lo) + 0.5) / n));

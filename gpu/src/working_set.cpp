@@ -21,7 +21,7 @@ class EmptinessTest {
  public:
   EmptinessTest(const volume::StoreReader& store, const transfer::TransferFunction& tf,
                 const WorkingSetOptions& options)
-      : store_(store), tf_(tf), options_(options) {
+      : store_(store), options_(options) {
     if (options.mode == RaycastMode::Dvr) {
       const volume::StoreHeader& h = store.header();
       if (store.sampleFormat() == volume::SampleFormat::UInt16) {
@@ -74,7 +74,6 @@ class EmptinessTest {
 
  private:
   const volume::StoreReader& store_;
-  const transfer::TransferFunction& tf_;
   WorkingSetOptions options_;
   std::optional<transfer::OpacitySummedAreaTable> table_;
   double mipThreshold_ = 0;

@@ -238,18 +238,19 @@ int runReference(const Arguments& a) {
 
 int runGpu(const Arguments& a) {
   const transfer::TransferFunction tf = loadTransferFunction(a);
-  const RenderOptions reference = renderOptions(a);
+  // The options both renderers share, parsed once (renderOptions), then the GPU's own.
+  const RenderOptions shared = renderOptions(a);
   gpu::RaycastOptions options;
-  options.mode = a.mode == "iso" ? gpu::RaycastMode::Iso
-                 : a.mode == "mip" ? gpu::RaycastMode::Mip
-                                   : gpu::RaycastMode::Dvr;
-  options.isoValue = reference.isoValue;
-  options.stepMm = a.stepMm;
-  options.earlyTermination = a.earlyTermination;
-  options.shading = a.shading == "on"    ? gpu::RaycastOptions::Shading::On
-                    : a.shading == "off" ? gpu::RaycastOptions::Shading::Off
-                                         : gpu::RaycastOptions::Shading::FromTransferFunction;
-  options.gradientOpacity = !a.noGradientOpacity;
+  options.mode = shared.mode == RenderMode::Iso   ? gpu::RaycastMode::Iso
+                 : shared.mode == RenderMode::Mip ? gpu::RaycastMode::Mip
+                                                  : gpu::RaycastMode::Dvr;
+  options.isoValue = shared.isoValue;
+  options.stepMm = shared.stepMm;
+  options.earlyTermination = shared.earlyTermination;
+  options.shading = shared.shading == RenderOptions::Shading::On    ? gpu::RaycastOptions::Shading::On
+                    : shared.shading == RenderOptions::Shading::Off ? gpu::RaycastOptions::Shading::Off
+                                                                    : gpu::RaycastOptions::Shading::FromTransferFunction;
+  options.gradientOpacity = shared.gradientOpacity;
   options.boundary = parseEnhancement(a.boundary, "--boundary");
   options.silhouette = parseEnhancement(a.silhouette, "--silhouette");
   if (!(a.lodPixels >= 0 && std::isfinite(a.lodPixels))) {
@@ -284,7 +285,7 @@ int runGpu(const Arguments& a) {
   // rendered again, untimed, by the counting variant for the per-pixel statistics.
   std::vector<double> framesMs;
   nlohmann::json frames = nlohmann::json::array();
-  gpu::Frame last;
+  gpu::Frame first;  // frame 0: its view is the image written
   for (int f = 0; f < a.frames; ++f) {
     const gpu::Camera view = frameCamera(a, domain, camera, f);
     options.stats = false;
@@ -312,15 +313,16 @@ int runGpu(const Arguments& a) {
       record["pixelsCovered"] = counted.stats.pixelsCovered;
     }
     frames.push_back(std::move(record));
-    if (f == 0) last = std::move(frame);  // the image written is frame 0's view
+    if (f == 0) first = std::move(frame);
   }
   const double medianMs = cli::medianOfSteadyFrames(framesMs);
 
-  gpu::writePng(last.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
-  if (!a.exr.empty()) gpu::writeExr(last.image, a.exr);
+  gpu::writePng(first.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
+  if (!a.exr.empty()) gpu::writeExr(first.image, a.exr);
 
   if (a.json) {
-    std::vector<std::string> defines = renderer.variantDefines(tf, options, camera.projection);
+    options.stats = false;  // the timed variant's defines, not the counting one's
+    const std::vector<std::string> defines = renderer.variantDefines(tf, options, camera.projection);
     const nlohmann::json report = {
         {"renderer", "gpu"},
         {"glRenderer", context->renderer()},
@@ -345,7 +347,7 @@ int runGpu(const Arguments& a) {
     fmt::print("{}: {}x{} {} on {} in {:.0f} ms median ({} frames, first {:.0f} ms), "
                "{} bricks in the working set\n",
                a.output, camera.width, camera.height, a.mode, context->renderer(), medianMs,
-               a.frames, framesMs.front(), last.stats.workingSetBricks);
+               a.frames, framesMs.front(), first.stats.workingSetBricks);
   }
   return 0;
 }

@@ -172,8 +172,8 @@ TEST_F(RaycasterTest, EnhancementsAndUnshadedDvrMatchTheReference) {
   RaycastOptions options;
   options.lodPixels = 0;
   options.shading = RaycastOptions::Shading::Off;
-  ImageMetrics m = compare(renderBoth(store, camera, tf, options).reference.image,
-                           renderBoth(store, camera, tf, options).gpu.image);
+  const Pair unshaded = renderBoth(store, camera, tf, options);
+  ImageMetrics m = compare(unshaded.reference.image, unshaded.gpu.image);
   EXPECT_GE(m.psnrDb, 40.0);
   options.shading = RaycastOptions::Shading::On;
   options.boundary = {true, 0.2, 0.05, 0.8};

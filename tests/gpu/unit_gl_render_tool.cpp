@@ -9,6 +9,7 @@
 #include <fstream>
 #include <set>
 
+#include "file_damage.h"
 #include "gl_test_support.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"
@@ -155,15 +156,8 @@ TEST_F(GpuRenderTool, CorruptedBrickFailsTheRenderNamingTheStore) {
     }
     ASSERT_GE(victim, 0);
     const volume::NodeRecord& node = reader.node(victim);
-    std::fstream f(corrupt, std::ios::in | std::ios::out | std::ios::binary);
-    const auto at = static_cast<std::streamoff>(node.payloadOffset + node.payloadBytes / 2);
-    f.seekg(at);
-    char byte = 0;
-    f.read(&byte, 1);
-    byte = static_cast<char>(byte ^ 0x5a);
-    f.seekp(at);
-    f.write(&byte, 1);
-    ASSERT_TRUE(f.good());
+    test::flipByte(corrupt, static_cast<std::streamoff>(node.payloadOffset + node.payloadBytes / 2));
+    if (HasFatalFailure()) return;
   }
   const std::string out = (dir / "corrupt.png").string();
   const ProcessResult r = runProcess({toolPath("octoray-render").string(), corrupt.string(), "-o",

@@ -17,6 +17,7 @@
 #include "memory_volume.h"
 #include "octoray/volume/brick_loader.h"
 #include "octoray/volume/store_builder.h"
+#include "file_damage.h"
 #include "test_paths.h"
 
 namespace octoray::volume {
@@ -270,17 +271,8 @@ TEST_F(BrickLoaderTest, CorruptedBrickIsReportedForItsIdAndOthersLoad) {
   std::filesystem::copy_file(*path_, corrupt);
   constexpr int64_t kBad = 20;
   const NodeRecord& bad = store_->node(kBad);
-  {
-    std::fstream f(corrupt, std::ios::in | std::ios::out | std::ios::binary);
-    const auto at = static_cast<std::streamoff>(bad.payloadOffset + bad.payloadBytes / 2);
-    f.seekg(at);
-    char byte = 0;
-    f.read(&byte, 1);
-    byte = static_cast<char>(byte ^ 0x5a);
-    f.seekp(at);
-    f.write(&byte, 1);
-    ASSERT_TRUE(f.good());
-  }
+  test::flipByte(corrupt, static_cast<std::streamoff>(bad.payloadOffset + bad.payloadBytes / 2));
+  if (HasFatalFailure()) return;
   const StoreReader store(corrupt.string());  // header and node table are intact
   BrickCache cache(kLargeBudgetBytes);
   std::mutex errorsMutex;

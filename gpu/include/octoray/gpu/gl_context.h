@@ -107,4 +107,11 @@ class WindowGlContext final : public GlContext {
 // Throws octoray::Error("", "GL errors at <where>: ...") when ctx.takeErrors() is not empty.
 void throwOnGlErrors(GlContext& ctx, std::string_view where);
 
+// The codes glGetError() reports on the calling thread's current context (as
+// "GL_INVALID_OPERATION", ...; at most 16: a lost context may keep reporting); clears them.
+// For code that draws without holding its GlContext (the renderers).
+std::vector<std::string> takeGlErrorCodes();
+// Throws octoray::Error("<codes> while <where>") when takeGlErrorCodes() is not empty.
+void throwOnGlError(std::string_view where);
+
 }  // namespace octoray::gpu
