@@ -296,6 +296,10 @@ TEST_F(RaycasterTest, RampCrossesBricksAndLevelsWithoutSeams) {
     const ImageMetrics m = compare(p.reference.image, p.gpu.image);
     EXPECT_GE(m.psnrDb, 50.0) << (shade ? "shaded" : "unshaded");
     EXPECT_LE(m.maxAbsError, 0.02) << (shade ? "shaded" : "unshaded");
+    // Not an empty picture matching an empty picture.
+    double coverage = 0;
+    for (std::size_t i = 3; i < p.gpu.image.rgba.size(); i += 4) coverage += p.gpu.image.rgba[i];
+    EXPECT_GT(coverage, 0.2 * camera.width * camera.height) << (shade ? "shaded" : "unshaded");
   }
   // MIP of a linear field is its value at an end of the chord; exact at every pixel, also
   // where rays run along brick faces (orthographic, axis-aligned view).
