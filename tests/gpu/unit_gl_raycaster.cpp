@@ -122,6 +122,55 @@ transfer::TransferFunction rampTf(bool shade) {
   return tf;
 }
 
+// Isosurface depths of a GPU frame against the reference's: pixels hit by both, pixels hit by
+// one only, and pixels whose depths differ by more than `tolerance` mm.
+struct IsoAgreement {
+  int64_t hitsBoth = 0, hitMismatch = 0, far = 0;
+};
+IsoAgreement isoAgreement(const Image& gpu, const Image& reference, double tolerance) {
+  IsoAgreement a;
+  for (std::size_t i = 0; i < gpu.depth.size(); ++i) {
+    const bool g = std::isfinite(gpu.depth[i]), r = std::isfinite(reference.depth[i]);
+    if (g != r) {
+      ++a.hitMismatch;
+      continue;
+    }
+    if (!g) continue;
+    ++a.hitsBoth;
+    if (std::abs(gpu.depth[i] - reference.depth[i]) > tolerance) ++a.far;
+  }
+  return a;
+}
+
+// MIP maxima of a GPU frame against the reference's. Where the reference's maximum is
+// invisible (zero opacity), the working set may lack the bricks that hold it (they cannot
+// show): the GPU may then miss or find a lower, equally invisible maximum (`invisibleShown`
+// counts those that became visible). Visible maxima must be equal to `oneStep`.
+struct MipAgreement {
+  int64_t hits = 0, differ = 0, missed = 0, invisibleShown = 0;
+  double worst = 0;
+};
+MipAgreement mipAgreement(const std::vector<float>& gpu, const std::vector<double>& reference,
+                          const transfer::TransferFunction& tf, double oneStep) {
+  const auto visible = [&](double v) { return !std::isnan(v) && tf.evaluate(v)[3] > 0; };
+  MipAgreement a;
+  for (std::size_t i = 0; i < gpu.size(); ++i) {
+    const double r = reference[i], g = gpu[i];
+    if (!visible(r)) {
+      a.invisibleShown += visible(g) ? 1 : 0;
+      continue;
+    }
+    if (std::isnan(g)) {
+      ++a.missed;
+      continue;
+    }
+    ++a.hits;
+    a.worst = std::max(a.worst, std::abs(r - g));
+    if (std::abs(r - g) > oneStep) ++a.differ;
+  }
+  return a;
+}
+
 class RaycasterTest : public GlTest {
  protected:
   // Renders with both renderers; checks finiteness and the GL error log.
@@ -193,22 +242,11 @@ TEST_F(RaycasterTest, IsosurfaceDepthIsWithinHalfAVoxelOfTheReference) {
   const transfer::TransferFunction tf = transfer::findPreset("bone");
   const Camera camera = orbit(store, 75, 25, 128);
   const Pair p = renderBoth(store, camera, tf, options);
-  const double halfVoxel = 0.5 * 0.55;
-  int64_t hitsBoth = 0, hitMismatch = 0, far = 0;
-  for (std::size_t i = 0; i < p.gpu.image.depth.size(); ++i) {
-    const bool g = std::isfinite(p.gpu.image.depth[i]), r = std::isfinite(p.reference.image.depth[i]);
-    if (g != r) {
-      ++hitMismatch;
-      continue;
-    }
-    if (!g) continue;
-    ++hitsBoth;
-    if (std::abs(p.gpu.image.depth[i] - p.reference.image.depth[i]) > halfVoxel) ++far;
-  }
-  EXPECT_GT(hitsBoth, 2000);
-  EXPECT_EQ(far, 0) << "pixels whose isosurface depth differs by more than half a voxel";
+  const IsoAgreement a = isoAgreement(p.gpu.image, p.reference.image, 0.5 * 0.55);  // half a voxel
+  EXPECT_GT(a.hitsBoth, 2000);
+  EXPECT_EQ(a.far, 0) << "pixels whose isosurface depth differs by more than half a voxel";
   // A pixel may change between hit and miss only where the surface grazes the ray.
-  EXPECT_LE(hitMismatch, hitsBoth / 500) << hitMismatch << " pixels hit in one renderer only";
+  EXPECT_LE(a.hitMismatch, a.hitsBoth / 500) << a.hitMismatch << " pixels hit in one renderer only";
   const ImageMetrics m = compare(p.reference.image, p.gpu.image);
   EXPECT_GE(m.psnrDb, 35.0);
 }
@@ -223,26 +261,12 @@ TEST_F(RaycasterTest, MipEqualsTheReferenceAtSixteenBits) {
   for (const Projection projection : {Projection::Perspective, Projection::Orthographic}) {
     const Camera camera = orbit(store, 250, 40, 96, projection);
     const Pair p = renderBoth(store, camera, tf, options);
-    const double oneStep = store.header().valueScale;  // one 16-bit stored step, in HU
-    // Where the reference's maximum is invisible (zero opacity), the working set may lack the
-    // bricks that hold it (they cannot show): the GPU may then miss or find a lower, equally
-    // invisible maximum. Visible maxima must be equal.
-    const auto visible = [&](double v) { return !std::isnan(v) && tf.evaluate(v)[3] > 0; };
-    int64_t hits = 0, differ = 0;
-    double worst = 0;
-    for (std::size_t i = 0; i < p.gpu.value.size(); ++i) {
-      const double r = p.reference.value[i], g = p.gpu.value[i];
-      if (!visible(r)) {
-        EXPECT_FALSE(visible(g)) << "pixel " << i << ": GPU maximum " << g << " HU, reference " << r;
-        continue;
-      }
-      ASSERT_FALSE(std::isnan(g)) << "pixel " << i << " missed by the GPU";
-      ++hits;
-      worst = std::max(worst, std::abs(r - g));
-      if (std::abs(r - g) > oneStep) ++differ;
-    }
-    EXPECT_GT(hits, 1000);
-    EXPECT_EQ(differ, 0) << "worst difference " << worst << " HU";
+    // One 16-bit stored step, in HU.
+    const MipAgreement a = mipAgreement(p.gpu.value, p.reference.value, tf, store.header().valueScale);
+    EXPECT_EQ(a.invisibleShown, 0);
+    EXPECT_EQ(a.missed, 0) << "visible maxima missed by the GPU";
+    EXPECT_GT(a.hits, 1000);
+    EXPECT_EQ(a.differ, 0) << "worst difference " << a.worst << " HU";
   }
 }
 
@@ -665,8 +689,9 @@ TEST_F(RaycasterTest, BadOptionsAreRejectedWithAMessage) {
   EXPECT_TRUE(context_->takeErrors().empty());
 }
 
-// Real CT: the Philips 1 mm head series, CT-Bone from 3D Slicer's presets.
-TEST_F(RaycasterTest, PhilipsHeadCtBoneMatchesTheReference) {
+// Real CT: the Philips 1 mm head series, CT-Bone from 3D Slicer's presets; DVR, an isosurface at
+// 300 HU (depth within half a voxel) and MIP (visible maxima equal at 16 bits).
+TEST_F(RaycasterTest, PhilipsHeadDvrIsoAndMipMatchTheReference) {
   OCTORAY_GL_TEST_PREAMBLE();
   const std::filesystem::path series = test::philipsDir() / "S21570" / "S2020";
   OCTORAY_REQUIRE_PATH(series);
@@ -680,10 +705,28 @@ TEST_F(RaycasterTest, PhilipsHeadCtBoneMatchesTheReference) {
                                        presets.string());
   RaycastOptions options;
   options.lodPixels = 0;
-  const Pair p = renderBoth(store, orbit(store, 20, 10, 128), tf, options);
+  const Camera camera = orbit(store, 20, 10, 128);
+  const Pair p = renderBoth(store, camera, tf, options);
   const ImageMetrics m = compare(p.reference.image, p.gpu.image);
   EXPECT_GE(m.psnrDb, 40.0);
   EXPECT_GE(m.ssim, 0.98);
+
+  options.mode = RaycastMode::Iso;
+  options.isoValue = 300;
+  const Pair iso = renderBoth(store, camera, tf, options);
+  const double halfVoxel = 0.5 * length(store.patientFromIndex().column(0));  // 0.449 mm columns
+  const IsoAgreement ia = isoAgreement(iso.gpu.image, iso.reference.image, halfVoxel);
+  EXPECT_GT(ia.hitsBoth, 2000);
+  EXPECT_EQ(ia.far, 0) << "pixels whose isosurface depth differs by more than half a voxel";
+  EXPECT_LE(ia.hitMismatch, ia.hitsBoth / 500) << ia.hitMismatch << " pixels hit in one renderer only";
+
+  options.mode = RaycastMode::Mip;
+  const Pair mip = renderBoth(store, camera, tf, options);
+  const MipAgreement ma = mipAgreement(mip.gpu.value, mip.reference.value, tf, store.header().valueScale);
+  EXPECT_EQ(ma.invisibleShown, 0);
+  EXPECT_EQ(ma.missed, 0);
+  EXPECT_GT(ma.hits, 1000);
+  EXPECT_EQ(ma.differ, 0) << "worst difference " << ma.worst << " HU";
 }
 
 }  // namespace
