@@ -22,7 +22,7 @@
 
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;

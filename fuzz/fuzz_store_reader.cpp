@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_format.h"
 #include "octoray/volume/store_reader.h"
 

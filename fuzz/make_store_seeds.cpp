@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/volume_source.h"
 #include "octoray/volume/store_builder.h"
 

@@ -12,7 +12,7 @@
 #include <fmt/format.h>
 
 #include "gdcm_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::dicom {
 namespace fs = std::filesystem;

@@ -11,7 +11,7 @@
 
 #include "octoray/dicom/dicom_decode.h"
 #include "gdcm_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::dicom {
 namespace {

@@ -12,7 +12,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 #include "vtk_messages.h"

@@ -14,7 +14,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 

@@ -15,7 +15,7 @@
 #include <cstring>
 #include <set>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include <mutex>
 
 namespace octoray::dicom::detail {

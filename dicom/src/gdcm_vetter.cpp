@@ -26,7 +26,7 @@
 #include <vector>
 
 #include "gdcm_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::dicom::detail {
 namespace {

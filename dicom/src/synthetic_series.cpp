@@ -22,7 +22,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::dicom {
 namespace {

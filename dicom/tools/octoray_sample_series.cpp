@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "cli_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/synthetic_series.h"
 
 namespace {

@@ -28,7 +28,7 @@
 #include "octoray/dicom/dicom_decode.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "test_paths.h"
 
 namespace octoray {

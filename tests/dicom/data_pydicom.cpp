@@ -37,7 +37,7 @@
 #include <nlohmann/json.hpp>
 
 #include "octoray/dicom/dicom_decode.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "test_paths.h"
 
 namespace octoray {

@@ -13,7 +13,7 @@
 #include <functional>
 #include <string>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 
 namespace octoray::formats_test {

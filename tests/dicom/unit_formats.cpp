@@ -9,7 +9,7 @@
 #include <fmt/format.h>
 
 #include "format_test_helpers.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "test_paths.h"
 

@@ -4,8 +4,8 @@
 #include <random>
 
 #include "octoray/dicom/dicom_decode.h"
-#include "octoray/dicom/error.h"
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/error.h"
+#include "octoray/core/geometry.h"
 
 namespace octoray {
 namespace {

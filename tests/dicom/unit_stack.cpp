@@ -14,7 +14,7 @@
 
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/synthetic_series.h"
 #include "test_paths.h"
 

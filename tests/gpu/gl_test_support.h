@@ -10,7 +10,7 @@
 #include <string>
 #include <string_view>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
 
 namespace octoray::gpu {

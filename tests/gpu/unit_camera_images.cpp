@@ -7,7 +7,7 @@
 #include <fstream>
 #include <limits>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"

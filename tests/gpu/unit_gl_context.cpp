@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gl_program.h"
 #include "octoray/gpu/shader_sources.h"

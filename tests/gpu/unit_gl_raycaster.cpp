@@ -20,7 +20,7 @@
 
 #include "gl_test_support.h"
 #include "memory_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/gpu_renderer.h"

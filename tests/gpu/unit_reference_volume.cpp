@@ -5,7 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "memory_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/reference/reference_volume.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"

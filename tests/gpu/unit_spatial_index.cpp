@@ -16,7 +16,7 @@
 #include <set>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/spatial_index.h"
 #include "octoray/volume/octree_layout.h"
 

@@ -6,7 +6,7 @@
 #include <limits>
 #include <random>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/transfer/transfer_function.h"
 
 namespace octoray::transfer {

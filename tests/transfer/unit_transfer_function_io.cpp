@@ -5,7 +5,7 @@
 
 #include <fstream>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "test_paths.h"
 

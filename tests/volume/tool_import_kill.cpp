@@ -22,7 +22,7 @@
 #include <thread>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"
 

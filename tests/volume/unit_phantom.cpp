@@ -9,7 +9,7 @@
 #include <filesystem>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/volume/phantom.h"
 #include "test_paths.h"

@@ -6,7 +6,7 @@
 
 #include "memory_volume.h"
 #include "store_leaf_check.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"

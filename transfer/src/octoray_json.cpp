@@ -9,7 +9,7 @@
 #include <set>
 
 #include "formats.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::transfer::detail {
 namespace {

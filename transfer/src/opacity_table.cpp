@@ -6,7 +6,7 @@
 #include <cmath>
 #include <limits>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::transfer {
 namespace {

@@ -8,7 +8,7 @@
 #include <cmath>
 
 #include "formats.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::transfer::detail {
 namespace {

@@ -15,7 +15,7 @@
 #include <string_view>
 
 #include "formats.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::transfer::detail {
 namespace {

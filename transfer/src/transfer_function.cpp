@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::transfer {
 namespace {

@@ -11,7 +11,7 @@
 #include <sstream>
 
 #include "formats.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 #ifndef OCTORAY_TRANSFER_PRESETS_DIR
 #error "OCTORAY_TRANSFER_PRESETS_DIR must name the shipped presets folder (transfer/CMakeLists.txt)"

@@ -6,7 +6,7 @@
 
 #include <cstring>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::volume::detail {
 

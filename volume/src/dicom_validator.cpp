@@ -7,7 +7,7 @@
 
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_validator.h"
 
 namespace octoray::volume {

@@ -2,7 +2,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::volume {
 namespace {

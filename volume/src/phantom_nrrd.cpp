@@ -15,7 +15,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/phantom.h"
 
 namespace octoray::volume {

@@ -15,7 +15,7 @@
 #include <fmt/format.h>
 
 #include "codec.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/octree_layout.h"
 #include "store_file_writer.h"
 

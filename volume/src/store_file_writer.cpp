@@ -10,7 +10,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::volume::detail {
 namespace fs = std::filesystem;

@@ -11,7 +11,7 @@
 #include <fmt/format.h>
 
 #include "codec.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::volume {
 namespace {

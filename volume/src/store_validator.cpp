@@ -17,7 +17,7 @@
 
 #include <fmt/format.h>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_reader.h"
 
 namespace octoray::volume {

@@ -22,7 +22,7 @@
 #include "cli_support.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/nifti_export.h"
 #include "octoray/volume/store_builder.h"

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "cli_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/phantom.h"
 
 namespace {

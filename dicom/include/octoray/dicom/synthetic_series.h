@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/geometry.h"
 
 namespace octoray::dicom {
 

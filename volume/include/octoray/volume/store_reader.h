@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/geometry.h"
 #include "octoray/volume/octree_layout.h"
 #include "octoray/volume/store_format.h"
 

@@ -1,8 +1,8 @@
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/geometry.h"
 
 #include <algorithm>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray {
 
