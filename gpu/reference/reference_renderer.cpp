@@ -9,7 +9,7 @@
 #include <cmath>
 #include <limits>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::gpu::reference {
 namespace {

@@ -7,7 +7,7 @@
 #include <limits>
 #include <span>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/volume_source.h"
 #include "octoray/volume/store_reader.h"
 

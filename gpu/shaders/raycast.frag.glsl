@@ -7,7 +7,7 @@
 // Variants (the #define prelude, see gpu_renderer.cpp): exactly one of MODE_DVR, MODE_ISO,
 // MODE_MIP; SHADING (Phong; gradients exist only then), GRADIENT_OPACITY, BOUNDARY_ENHANCEMENT,
 // SILHOUETTE_ENHANCEMENT (view-dependent transparency), GRADIENT_POOL (gradients read from the
-// RGBA8 pool instead of 6 value fetches), STATS (per-pixel counters), PERSPECTIVE;
+// RGBA8 pool instead of 6 value fetches), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
 // BRICK_SIZE, BORDER and GRADIENT_DELTA are numbers.
 //
 // Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
@@ -20,6 +20,14 @@ layout(std430, binding = 1) readonly buffer IndexLeaves { uint leaves[]; };
 // (value, r, g, b), then opacity points (value, alpha, 0, 0), then gradient-opacity points
 // (magnitude, alpha, 0, 0).
 layout(std430, binding = 2) readonly buffer TfPoints { vec4 tfPoints[]; };
+#ifdef FEEDBACK
+// Ray-guided feedback (GigaVoxels): per leaf record, [0] rays that sampled the leaf before
+// terminating, [1] rays that wanted finer data there (voxels projecting above uLodPixels).
+layout(std430, binding = 4) buffer Feedback { uint feedback[]; };
+uniform float uLeafVoxelMm;  // the leaf level's largest voxel edge (mm)
+uniform float uPixelScale;   // perspective: pixel size per mm of depth; orthographic: mm per pixel
+uniform float uLodPixels;
+#endif
 #ifdef STATS
 layout(std430, binding = 3) buffer Touched { uint touched[]; };
 #endif
@@ -273,6 +281,19 @@ void main() {
       uint slot = leaves[record];
       int levelsUp = uLeafLevel - level;
       float levelScale = exp2(float(levelsUp));
+#ifdef FEEDBACK
+      atomicAdd(feedback[record / 4u], 1u);
+      if (levelsUp > 0) {
+#ifdef PERSPECTIVE
+        float footprint = max(t * dot(dir, uForward), 1e-6) * uPixelScale;
+#else
+        float footprint = uPixelScale;
+#endif
+        if (uLodPixels <= 0.0 || uLeafVoxelMm * levelScale > uLodPixels * footprint) {
+          atomicAdd(feedback[record / 4u + 1u], 1u);
+        }
+      }
+#endif
       // texel(t) = p0 + t * p1 inside this leaf's slot.
       float texelsPerQ = float(BRICK_SIZE) / dim;
       vec3 p0 = slotOrigin(slot) + float(BORDER) + (qo - boxMin) * texelsPerQ;

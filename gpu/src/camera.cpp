@@ -8,7 +8,7 @@
 #include <fstream>
 #include <numbers>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/volume_source.h"
 
 namespace octoray::gpu {

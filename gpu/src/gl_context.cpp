@@ -16,7 +16,7 @@
 #include <mutex>
 #include <utility>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::gpu {
 namespace {

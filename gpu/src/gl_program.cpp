@@ -7,7 +7,7 @@
 #include <algorithm>
 #include <utility>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/shader_sources.h"
 
 namespace octoray::gpu {

@@ -1,80 +1,30 @@
 #include "octoray/gpu/gpu_renderer.h"
 
-#include <epoxy/gl.h>
 #include <fmt/format.h>
-#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <chrono>
-#include <cmath>
-#include <limits>
-#include <mutex>
-#include <numeric>
 
-#include "octoray/dicom/error.h"
-#include "octoray/gpu/gl_context.h"
-#include "octoray/gpu/gl_program.h"
-#include "octoray/gpu/spatial_index.h"
+#include "octoray/core/error.h"
 
 namespace octoray::gpu {
 namespace {
-
-constexpr int kTfTableSize = 8192;
-constexpr double kDegrees = 3.14159265358979323846 / 180.0;
-constexpr std::size_t kUploadBatch = 256;
-constexpr int kCellVoxels = 8;  // edge of the cells a brick's value range is kept for
-
-// Per cell of kCellVoxels^3 voxels of a brick, the smallest and largest stored sample that a
-// trilinear sample inside the cell can read (the cell's voxels and one more on each side,
-// from the brick's border), as (min, max) pairs in x-fastest cell order.
-template <typename T>
-std::vector<T> cellRanges(const std::vector<T>& samples, int edge, int brickSize, int border) {
-  const int cells = brickSize / kCellVoxels;
-  std::vector<T> ranges(static_cast<std::size_t>(cells) * cells * cells * 2);
-  const auto at = [&](int x, int y, int z) {
-    return samples[static_cast<std::size_t>(x) +
-                   static_cast<std::size_t>(edge) * (static_cast<std::size_t>(y) +
-                                                     static_cast<std::size_t>(edge) * static_cast<std::size_t>(z))];
-  };
-  std::size_t out = 0;
-  for (int cz = 0; cz < cells; ++cz) {
-    for (int cy = 0; cy < cells; ++cy) {
-      for (int cx = 0; cx < cells; ++cx) {
-        T lo = at(border + cx * kCellVoxels, border + cy * kCellVoxels, border + cz * kCellVoxels);
-        T hi = lo;
-        for (int z = border + cz * kCellVoxels - 1; z <= border + (cz + 1) * kCellVoxels; ++z) {
-          for (int y = border + cy * kCellVoxels - 1; y <= border + (cy + 1) * kCellVoxels; ++y) {
-            for (int x = border + cx * kCellVoxels - 1; x <= border + (cx + 1) * kCellVoxels; ++x) {
-              const T v = at(x, y, z);
-              lo = std::min(lo, v);
-              hi = std::max(hi, v);
-            }
-          }
-        }
-        ranges[out++] = lo;
-        ranges[out++] = hi;
-      }
-    }
-  }
-  return ranges;
-}
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
 }
 
-// True when the TF's gradient opacity changes nothing (no points, or every point 1).
-bool gradientOpacityIsIdentity(const transfer::TransferFunction& tf) {
-  return std::all_of(tf.gradientOpacity.begin(), tf.gradientOpacity.end(),
-                     [](const transfer::GradientOpacityPoint& p) { return p.alpha == 1.0f; });
+WorkingSetConfig workingSetConfig(const RendererConfig& c) {
+  WorkingSetConfig w;
+  w.uploadBytesPerFrame = c.uploadBytesPerFrame;
+  w.visibility = c.visibility;
+  return w;
 }
 
-void setMat3(GLint location, const std::array<std::array<double, 3>, 3>& rows) {
-  if (location < 0) return;
-  std::array<float, 9> v{};
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) v[static_cast<std::size_t>(3 * r + c)] = static_cast<float>(rows[r][c]);
-  glUniformMatrix3fv(location, 1, GL_TRUE, v.data());
+volume::BrickLoaderOptions loaderOptions(const RendererConfig& c) {
+  volume::BrickLoaderOptions o;
+  o.threads = std::max(1, c.loaderThreads);
+  return o;
 }
 
 }  // namespace
@@ -82,669 +32,173 @@ void setMat3(GLint location, const std::array<std::array<double, 3>, 3>& rows) {
 struct GpuRenderer::Impl {
   const volume::StoreReader& store;
   RendererConfig config;
-  const volume::OctreeLayout& layout;
-  int edge = 0;
-  bool floatPool = false;
-  bool hasGradientPool = false;
-  std::array<int64_t, 3> slotGrid{1, 1, 1};
-  int64_t capacity = 0;
-  std::size_t slotBytes = 0;
-
-  GlTexture pool{GL_TEXTURE_3D};
-  GlTexture gradientPool{GL_TEXTURE_3D};
-  GlTexture tfTable{GL_TEXTURE_1D};
-  GlTexture cellRange{GL_TEXTURE_3D};   // (min, max) per cell of every slot
-  GlTexture tfNonZero{GL_TEXTURE_1D};   // entries of tfTable with opacity, counted below i
-  int cellsPerBrick = 0;
-  GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer;
-  GlVertexArray vao;
-  GlFramebuffer fbo;
-  std::vector<GlTexture> targets;  // colour, aux, stats, depth
-  int targetWidth = 0, targetHeight = 0;
-
-  struct SlotInfo {
-    int64_t node = -1;
-    uint64_t lastUsed = 0;
-  };
-  std::vector<SlotInfo> slots;
-  std::unordered_map<int64_t, uint32_t> slotOfNode;
-  uint64_t frameNumber = 0;
-
-  std::map<std::string, GlProgram> programs;
-  SpatialIndex index;  // the last frame's
-
-  // The ray parameters in the single precision the shader receives them in.
-  struct RayUniforms {
-    std::array<float, 3> eye{}, forward{}, right{}, up{}, qOffset{}, domainMax{};
-    std::array<float, 2> halfExtent{}, viewport{};
-    std::array<float, 9> qFromPatient{};  // row-major
-    bool perspective = true;
-  };
-  RayUniforms rayUniforms(const Camera& camera) const;
+  // Declaration order is destruction order reversed: the loader stops before the cache goes.
+  volume::BrickCache cache;
+  BrickPool pool;
+  volume::BrickLoader loader;
+  WorkingSet workingSet;
+  Raycaster raycaster;
+  SpatialIndex index;
+  int64_t frames = 0;
 
   Impl(const volume::StoreReader& s, const RendererConfig& c)
-      : store(s), config(c), layout(s.layout()) {}
-
-  void allocatePool();
-  void ensureTargets(int width, int height);
-  GlProgram& program(const std::vector<std::string>& defines);
-  std::vector<std::string> defines(const transfer::TransferFunction& tf,
-                                   const RaycastOptions& options, Projection projection) const;
-  std::vector<CutLeaf> residentCut(const WorkingSet& ws, FrameStats& stats);
-  void uploadTransferFunction(const transfer::TransferFunction& tf, const RaycastOptions& options,
-                              int counts[3]);
-  double stepMm(const RaycastOptions& options) const;
-  // The physical value range the TF table spans: the store's (the root's [min, max]).
-  std::pair<double, double> tfRange() const {
-    const volume::NodeRecord& root = store.node(0);
-    return {root.minValue, root.maxValue > root.minValue ? root.maxValue : root.minValue + 1.0};
+      : store(s),
+        config(c),
+        cache(c.cacheBytes),
+        pool(s, c.poolBytes, c.gradientPool),
+        loader(s, cache, loaderOptions(c)),
+        workingSet(s, pool, cache, loader, workingSetConfig(c)),
+        raycaster(s, pool) {
+    if (c.visibilityThreshold < 1) {
+      throw Error("", fmt::format("visibility threshold {} must be at least 1 pixel", c.visibilityThreshold));
+    }
   }
 };
 
-GpuRenderer::Impl::RayUniforms GpuRenderer::Impl::rayUniforms(const Camera& camera) const {
-  RayUniforms u;
-  const auto f3 = [](Vec3 v) {
-    return std::array<float, 3>{static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z)};
-  };
-  // Camera frame (Camera::ray).
-  const Vec3 forward = normalize(camera.target - camera.eye);
-  const Vec3 right = normalize(cross(forward, camera.up));
-  const Vec3 up = cross(right, forward);
-  const double aspect = static_cast<double>(camera.width) / camera.height;
-  u.perspective = camera.projection == Projection::Perspective;
-  const double halfY = u.perspective ? std::tan(0.5 * camera.fovYDegrees * kDegrees)
-                                     : 0.5 * camera.orthoHeightMm;
-  u.eye = f3(camera.eye);
-  u.forward = f3(forward);
-  u.right = f3(right);
-  u.up = f3(up);
-  u.halfExtent = {static_cast<float>(halfY * aspect), static_cast<float>(halfY)};
-  u.viewport = {static_cast<float>(camera.width), static_cast<float>(camera.height)};
-  // Octree space: q = (indexFromPatient(p) + 0.5) / S.
-  const Mat4 indexFromPatient = store.patientFromIndex().inverseAffine();
-  const double cube = static_cast<double>(layout.brickSize()) * static_cast<double>(layout.levelScale(0));
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) {
-      u.qFromPatient[static_cast<std::size_t>(3 * r + c)] = static_cast<float>(indexFromPatient.m[r][c] / cube);
-    }
-    u.qOffset[static_cast<std::size_t>(r)] = static_cast<float>((indexFromPatient.m[r][3] + 0.5) / cube);
-  }
-  const volume::Index3& dims = layout.levelDims(layout.leafLevel());
-  for (int a = 0; a < 3; ++a) {
-    u.domainMax[static_cast<std::size_t>(a)] = static_cast<float>(static_cast<double>(dims[a]) / cube);
-  }
-  return u;
-}
-
-void GpuRenderer::Impl::allocatePool() {
-  edge = layout.storedEdge();
-  floatPool = store.sampleFormat() == volume::SampleFormat::Float32;
-  hasGradientPool = config.gradientPool && (store.header().flags & volume::kStoreHasGradients);
-  if (config.gradientPool && !hasGradientPool) {
-    throw Error(store.path(), "a gradient pool was asked for but the store has no gradients "
-                              "(import it with --gradients)");
-  }
-  const std::size_t e3 = static_cast<std::size_t>(edge) * edge * edge;
-  slotBytes = e3 * (floatPool ? 4 : 2) + (hasGradientPool ? e3 * 4 : 0);
-  GLint max3d = 0;
-  glGetIntegerv(GL_MAX_3D_TEXTURE_SIZE, &max3d);
-  const int64_t perAxis = std::max<int64_t>(1, max3d / edge);
-  int64_t want = std::max<int64_t>(1, static_cast<int64_t>(config.poolBytes / slotBytes));
-  want = std::min<int64_t>(want, static_cast<int64_t>(store.nodes().size()));
-  want = std::min(want, perAxis * perAxis * perAxis);
-  slotGrid[0] = std::min(want, perAxis);
-  slotGrid[1] = std::min((want + slotGrid[0] - 1) / slotGrid[0], perAxis);
-  slotGrid[2] = std::max<int64_t>(1, want / (slotGrid[0] * slotGrid[1]));
-  if (slotGrid[0] * slotGrid[1] * slotGrid[2] < want && slotGrid[2] < perAxis &&
-      slotGrid[0] * slotGrid[1] * (slotGrid[2] + 1) * static_cast<int64_t>(slotBytes) <=
-          static_cast<int64_t>(config.poolBytes)) {
-    ++slotGrid[2];
-  }
-  capacity = slotGrid[0] * slotGrid[1] * slotGrid[2];
-  slots.assign(static_cast<std::size_t>(capacity), {});
-
-  const auto w = static_cast<GLsizei>(slotGrid[0] * edge), h = static_cast<GLsizei>(slotGrid[1] * edge),
-             d = static_cast<GLsizei>(slotGrid[2] * edge);
-  glTextureStorage3D(pool.id(), 1, floatPool ? GL_R32F : GL_R16, w, h, d);
-  for (GLuint tex : {pool.id(), gradientPool.id()}) {
-    glTextureParameteri(tex, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    glTextureParameteri(tex, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-    glTextureParameteri(tex, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-    glTextureParameteri(tex, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-    glTextureParameteri(tex, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
-  }
-  if (hasGradientPool) glTextureStorage3D(gradientPool.id(), 1, GL_RGBA8, w, h, d);
-  cellsPerBrick = layout.brickSize() / kCellVoxels;
-  glTextureStorage3D(cellRange.id(), 1, floatPool ? GL_RG32F : GL_RG16,
-                     static_cast<GLsizei>(slotGrid[0] * cellsPerBrick),
-                     static_cast<GLsizei>(slotGrid[1] * cellsPerBrick),
-                     static_cast<GLsizei>(slotGrid[2] * cellsPerBrick));
-  glTextureStorage1D(tfNonZero.id(), 1, GL_R32F, kTfTableSize + 1);
-  for (GLuint tex : {cellRange.id(), tfNonZero.id()}) {
-    glTextureParameteri(tex, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-    glTextureParameteri(tex, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-  }
-  glTextureStorage1D(tfTable.id(), 1, GL_RGBA32F, kTfTableSize);
-  glTextureParameteri(tfTable.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTextureParameteri(tfTable.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  glTextureParameteri(tfTable.id(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-  throwOnGlError(fmt::format("allocating a {}x{}x{} brick pool", w, h, d));
-}
-
-void GpuRenderer::Impl::ensureTargets(int width, int height) {
-  if (width == targetWidth && height == targetHeight && !targets.empty()) return;
-  targets.clear();
-  const GLenum formats[4] = {GL_RGBA32F, GL_RGBA32F, GL_RGBA32F, GL_DEPTH_COMPONENT32F};
-  for (int i = 0; i < 4; ++i) {
-    targets.emplace_back(GL_TEXTURE_2D);
-    glTextureStorage2D(targets.back().id(), 1, formats[i], width, height);
-  }
-  for (int i = 0; i < 3; ++i) {
-    glNamedFramebufferTexture(fbo.id(), static_cast<GLenum>(GL_COLOR_ATTACHMENT0 + i), targets[static_cast<std::size_t>(i)].id(), 0);
-  }
-  glNamedFramebufferTexture(fbo.id(), GL_DEPTH_ATTACHMENT, targets[3].id(), 0);
-  const GLenum status = glCheckNamedFramebufferStatus(fbo.id(), GL_FRAMEBUFFER);
-  if (status != GL_FRAMEBUFFER_COMPLETE) {
-    throw Error("", fmt::format("GPU raycaster: framebuffer {}x{} incomplete (0x{:x})", width, height, status));
-  }
-  targetWidth = width;
-  targetHeight = height;
-  throwOnGlError("allocating render targets");
-}
-
-GlProgram& GpuRenderer::Impl::program(const std::vector<std::string>& defs) {
-  std::string key;
-  for (const std::string& d : defs) key += d + ";";
-  auto it = programs.find(key);
-  if (it == programs.end()) {
-    it = programs.emplace(key, GlProgram::build("fullscreen.vert.glsl", "raycast.frag.glsl", defs)).first;
-  }
-  return it->second;
-}
-
-std::vector<std::string> GpuRenderer::Impl::defines(const transfer::TransferFunction& tf,
-                                                    const RaycastOptions& o,
-                                                    Projection projection) const {
-  std::vector<std::string> d;
-  const bool shade = o.shading == RaycastOptions::Shading::On ||
-                     (o.shading == RaycastOptions::Shading::FromTransferFunction && tf.material.shade);
-  switch (o.mode) {
-    case RaycastMode::Dvr: {
-      d.emplace_back("MODE_DVR");
-      if (o.cellSkipping) d.emplace_back("CELL_SKIPPING");
-      if (shade) d.emplace_back("SHADING");
-      const bool gradientOpacity = o.gradientOpacity && !gradientOpacityIsIdentity(tf);
-      if (gradientOpacity) d.emplace_back("GRADIENT_OPACITY");
-      if (o.boundary.enabled) d.emplace_back("BOUNDARY_ENHANCEMENT");
-      if (o.silhouette.enabled) d.emplace_back("SILHOUETTE_ENHANCEMENT");
-      if (hasGradientPool && (shade || gradientOpacity || o.boundary.enabled || o.silhouette.enabled)) {
-        d.emplace_back("GRADIENT_POOL");
-      }
-      break;
-    }
-    case RaycastMode::Iso:
-      d.emplace_back("MODE_ISO");
-      if (shade) d.emplace_back("SHADING");
-      if (hasGradientPool && shade) d.emplace_back("GRADIENT_POOL");
-      break;
-    case RaycastMode::Mip:
-      d.emplace_back("MODE_MIP");
-      if (o.mip == RaycastOptions::MipMethod::Sampled) d.emplace_back("MIP_SAMPLED");
-      break;
-  }
-  d.push_back(fmt::format("BRICK_SIZE {}", layout.brickSize()));
-  d.push_back(fmt::format("BORDER {}", layout.border()));
-  d.push_back(fmt::format("CELL_VOXELS {}", kCellVoxels));
-  d.push_back(fmt::format("TF_TABLE_SIZE {}", kTfTableSize));
-  // Central differences of +-1 voxel need two border samples; with one, +-0.5 voxel stays
-  // inside the brick.
-  d.push_back(layout.border() >= 2 ? "GRADIENT_DELTA 1.0" : "GRADIENT_DELTA 0.5");
-  if (o.stats) d.emplace_back("STATS");
-  if (projection == Projection::Perspective) d.emplace_back("PERSPECTIVE");
-  return d;
-}
-
-double GpuRenderer::Impl::stepMm(const RaycastOptions& o) const {
-  if (o.stepMm > 0) return o.stepMm;
-  const Mat4 m = store.patientFromIndex();
-  double smallest = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a) smallest = std::min(smallest, length(m.column(a)));
-  return 0.25 * smallest;
-}
-
-// Gives every data node of the working set a pool slot, reading and uploading the missing
-// bricks; returns the cut with slots.
-std::vector<CutLeaf> GpuRenderer::Impl::residentCut(const WorkingSet& ws, FrameStats& stats) {
-  ++frameNumber;
-  std::vector<CutLeaf> cut;
-  cut.reserve(ws.dataNodes.size());
-  std::vector<std::pair<int64_t, uint32_t>> missing;  // node, slot
-  // Mark the resident ones first so that eviction never takes a slot this frame needs.
-  std::vector<int64_t> ids;
-  ids.reserve(ws.dataNodes.size());
-  for (const volume::NodeKey& key : ws.dataNodes) {
-    const int64_t id = layout.nodeId(key);
-    ids.push_back(id);
-    if (auto it = slotOfNode.find(id); it != slotOfNode.end()) slots[it->second].lastUsed = frameNumber;
-  }
-  // Free slots: never used, then least recently used.
-  std::vector<uint32_t> freeSlots;
-  for (uint32_t s = 0; s < slots.size(); ++s) {
-    if (slots[s].lastUsed != frameNumber) freeSlots.push_back(s);
-  }
-  std::sort(freeSlots.begin(), freeSlots.end(), [&](uint32_t a, uint32_t b) {
-    return slots[a].lastUsed > slots[b].lastUsed;  // pop_back takes the oldest
-  });
-  for (int64_t id : ids) {
-    auto it = slotOfNode.find(id);
-    if (it == slotOfNode.end()) {
-      if (freeSlots.empty()) {
-        throw Error(store.path(), fmt::format("GPU raycaster: the working set needs more than the "
-                                              "pool's {} slots", capacity));
-      }
-      const uint32_t s = freeSlots.back();
-      freeSlots.pop_back();
-      if (slots[s].node >= 0) slotOfNode.erase(slots[s].node);
-      slots[s] = {id, frameNumber};
-      it = slotOfNode.emplace(id, s).first;
-      missing.emplace_back(id, s);
-    }
-    CutLeaf leaf;
-    leaf.key = layout.nodeKey(id);
-    leaf.slot = it->second;
-    leaf.maxValue = store.node(id).maxValue;
-    cut.push_back(leaf);
-  }
-
-  const auto start = std::chrono::steady_clock::now();
-  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-  for (std::size_t first = 0; first < missing.size(); first += kUploadBatch) {
-    const std::size_t count = std::min(kUploadBatch, missing.size() - first);
-    std::vector<volume::Brick> bricks(count);
-    std::vector<std::vector<uint16_t>> ranges16(count);
-    std::vector<std::vector<float>> ranges32(count);
-    std::exception_ptr failure;
-    std::mutex failureMutex;
-    tbb::parallel_for(std::size_t{0}, count, [&](std::size_t i) {
-      try {
-        bricks[i] = store.readBrick(missing[first + i].first);
-        if (floatPool) {
-          ranges32[i] = cellRanges(bricks[i].f32, edge, layout.brickSize(), layout.border());
-        } else {
-          ranges16[i] = cellRanges(bricks[i].u16, edge, layout.brickSize(), layout.border());
-        }
-      } catch (...) {
-        const std::lock_guard lock(failureMutex);
-        if (!failure) failure = std::current_exception();
-      }
-    });
-    if (failure) {
-      // The slots taken for unread bricks hold nothing valid: forget them.
-      for (std::size_t i = first; i < missing.size(); ++i) {
-        slotOfNode.erase(missing[i].first);
-        slots[missing[i].second] = {};
-      }
-      std::rethrow_exception(failure);
-    }
-    for (std::size_t i = 0; i < count; ++i) {
-      const uint32_t s = missing[first + i].second;
-      const auto x = static_cast<GLint>(s % slotGrid[0] * edge);
-      const auto y = static_cast<GLint>(s / slotGrid[0] % slotGrid[1] * edge);
-      const auto z = static_cast<GLint>(s / (slotGrid[0] * slotGrid[1]) * edge);
-      const volume::Brick& b = bricks[i];
-      if (floatPool) {
-        glTextureSubImage3D(pool.id(), 0, x, y, z, edge, edge, edge, GL_RED, GL_FLOAT, b.f32.data());
-      } else {
-        glTextureSubImage3D(pool.id(), 0, x, y, z, edge, edge, edge, GL_RED, GL_UNSIGNED_SHORT,
-                            b.u16.data());
-      }
-      if (hasGradientPool) {
-        glTextureSubImage3D(gradientPool.id(), 0, x, y, z, edge, edge, edge, GL_RGBA,
-                            GL_UNSIGNED_BYTE, b.gradients.data());
-      }
-      const GLint cx = x / edge * cellsPerBrick, cy = y / edge * cellsPerBrick,
-                  cz = z / edge * cellsPerBrick;
-      if (floatPool) {
-        glTextureSubImage3D(cellRange.id(), 0, cx, cy, cz, cellsPerBrick, cellsPerBrick,
-                            cellsPerBrick, GL_RG, GL_FLOAT, ranges32[i].data());
-      } else {
-        glTextureSubImage3D(cellRange.id(), 0, cx, cy, cz, cellsPerBrick, cellsPerBrick,
-                            cellsPerBrick, GL_RG, GL_UNSIGNED_SHORT, ranges16[i].data());
-      }
-    }
-  }
-  throwOnGlError("uploading bricks");
-  stats.uploadMs = millisecondsSince(start);
-  stats.bricksUploaded = static_cast<int64_t>(missing.size());
-  return cut;
-}
-
-void GpuRenderer::Impl::uploadTransferFunction(const transfer::TransferFunction& tf,
-                                               const RaycastOptions& options, int counts[3]) {
-  const auto [lo, hi] = tfRange();
-  std::vector<float> table(static_cast<std::size_t>(kTfTableSize) * 4);
-  for (int i = 0; i < kTfTableSize; ++i) {
-    const double v = lo + (hi - lo) * i / (kTfTableSize - 1);
-    const std::array<float, 4> c = tf.evaluate(v);
-    const double alpha = std::clamp<double>(c[3], 0.0, 1.0);
-    float* e = &table[static_cast<std::size_t>(i) * 4];
-    e[0] = c[0];
-    e[1] = c[1];
-    e[2] = c[2];
-    e[3] = alpha < 1.0 ? static_cast<float>(-std::log1p(-alpha)) : 1e4f;
-  }
-  glTextureSubImage1D(tfTable.id(), 0, 0, kTfTableSize, GL_RGBA, GL_FLOAT, table.data());
-  // nonZero[i]: entries below i with opacity (exact integers in float up to 2^24).
-  std::vector<float> nonZero(static_cast<std::size_t>(kTfTableSize) + 1, 0.0f);
-  for (int i = 0; i < kTfTableSize; ++i) {
-    nonZero[static_cast<std::size_t>(i) + 1] =
-        nonZero[static_cast<std::size_t>(i)] + (table[static_cast<std::size_t>(i) * 4 + 3] > 0 ? 1.0f : 0.0f);
-  }
-  glTextureSubImage1D(tfNonZero.id(), 0, 0, kTfTableSize + 1, GL_RED, GL_FLOAT, nonZero.data());
-
-  std::vector<float> points;
-  for (const transfer::ColorPoint& p : tf.color) {
-    points.insert(points.end(), {static_cast<float>(p.value), p.r, p.g, p.b});
-  }
-  for (const transfer::OpacityPoint& p : tf.opacity) {
-    points.insert(points.end(), {static_cast<float>(p.value), p.alpha, 0, 0});
-  }
-  const bool gradient = options.gradientOpacity;
-  if (gradient) {
-    for (const transfer::GradientOpacityPoint& p : tf.gradientOpacity) {
-      points.insert(points.end(), {static_cast<float>(p.magnitude), p.alpha, 0, 0});
-    }
-  }
-  counts[0] = static_cast<int>(tf.color.size());
-  counts[1] = static_cast<int>(tf.opacity.size());
-  counts[2] = gradient ? static_cast<int>(tf.gradientOpacity.size()) : 0;
-  if (points.empty()) points.assign(4, 0.0f);
-  glNamedBufferData(tfPointBuffer.id(), static_cast<GLsizeiptr>(points.size() * sizeof(float)),
-                    points.data(), GL_DYNAMIC_DRAW);
-}
-
 GpuRenderer::GpuRenderer(const volume::StoreReader& store, const RendererConfig& config)
-    : impl_(std::make_unique<Impl>(store, config)) {
-  impl_->allocatePool();
-}
+    : impl_(std::make_unique<Impl>(store, config)) {}
 
 GpuRenderer::~GpuRenderer() = default;
 
-unsigned GpuRenderer::variantProgram(const transfer::TransferFunction& tf,
-                                     const RaycastOptions& options, Projection projection) {
-  return impl_->program(impl_->defines(tf, options, projection)).id();
-}
+Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFunction& tf,
+                               const RaycastOptions& options) {
+  Impl& im = *impl_;
+  validateRaycast(camera, tf, options);
+  const uint64_t cacheEvictions = im.cache.stats().evictions;
+  const uint64_t poolEvictions = im.pool.stats().evictions;
 
-int64_t GpuRenderer::poolSlots() const { return impl_->capacity; }
+  WorkingSetOptions wso;
+  wso.mode = options.mode;
+  wso.lodPixels = options.lodPixels;
+  wso.isoValue = options.isoValue;
+  const std::vector<CutLeaf>& cut = im.workingSet.update(camera, tf, wso);
+  const auto indexStart = std::chrono::steady_clock::now();
+  im.index = SpatialIndex::build(im.store.layout(), cut);
+  const double indexMs = millisecondsSince(indexStart);
 
-const SpatialIndex& GpuRenderer::lastIndex() const { return impl_->index; }
-
-std::array<float, 3> GpuRenderer::domainMax(const Camera& camera) const {
-  return impl_->rayUniforms(camera).domainMax;
-}
-
-OctreeRay GpuRenderer::pixelRay(const Camera& camera, int x, int y) const {
-  // raycast.frag.glsl's first lines, operation for operation (GL rows run bottom-up).
-  const Impl::RayUniforms u = impl_->rayUniforms(camera);
-  const float fc[2] = {static_cast<float>(x) + 0.5f, static_cast<float>(camera.height - 1 - y) + 0.5f};
-  float sv[2];
-  for (int i = 0; i < 2; ++i) sv[i] = (2.0f * fc[i] / u.viewport[i] - 1.0f) * u.halfExtent[i];
-  std::array<float, 3> origin{}, dir{};
-  for (int a = 0; a < 3; ++a) {
-    if (u.perspective) {
-      origin[a] = u.eye[a];
-      dir[a] = u.forward[a] + sv[0] * u.right[a] + sv[1] * u.up[a];
-    } else {
-      origin[a] = u.eye[a] + sv[0] * u.right[a] + sv[1] * u.up[a];
-      dir[a] = u.forward[a];
+  const bool feedback = im.config.visibility != Visibility::None;
+  LeafFeedbackCounts counts;
+  Frame frame = im.raycaster.draw(camera, tf, options, im.index, feedback ? &counts : nullptr);
+  FrameStats& stats = frame.stats;
+  if (feedback) {
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<WorkingSet::LeafFeedback> leaves;
+    leaves.reserve(static_cast<std::size_t>(im.index.dataLeaves));
+    const auto threshold = static_cast<uint32_t>(im.config.visibilityThreshold);
+    for (std::size_t r = 0; r < counts.rays.size(); ++r) {
+      const uint32_t slot = im.index.leaves[r * kLeafRecordUints];
+      if (slot == kNoSlot) continue;
+      WorkingSet::LeafFeedback f;
+      f.node = im.pool.nodeIn(slot);
+      f.seen = counts.rays[r] >= threshold;
+      f.wantsFiner = counts.finer[r] >= threshold;
+      leaves.push_back(f);
     }
+    im.workingSet.applyFeedback(leaves);
+    stats.feedbackMs = millisecondsSince(start);
+    stats.feedbackDelayFrames = 1;  // read back after the draw, used by the next update
   }
-  if (u.perspective) {
-    const float inv = 1.0f / std::sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
-    for (float& d : dir) d *= inv;
-  }
-  OctreeRay ray;
-  for (int r = 0; r < 3; ++r) {
-    const float* m = &u.qFromPatient[static_cast<std::size_t>(3 * r)];
-    ray.origin[r] = m[0] * origin[0] + m[1] * origin[1] + m[2] * origin[2] + u.qOffset[r];
-    ray.direction[r] = m[0] * dir[0] + m[1] * dir[1] + m[2] * dir[2];
-  }
-  return ray;
-}
 
-double GpuRenderer::defaultStepMm() const { return impl_->stepMm({}); }
-
-std::vector<std::string> GpuRenderer::variantDefines(const transfer::TransferFunction& tf,
-                                                     const RaycastOptions& options,
-                                                     Projection projection) const {
-  return impl_->defines(tf, options, projection);
-}
-
-const std::string& GpuRenderer::variantSource(const transfer::TransferFunction& tf,
-                                              const RaycastOptions& options,
-                                              Projection projection) {
-  return impl_->program(impl_->defines(tf, options, projection)).fragmentSourceWithDefines();
+  const WorkingSetStats& ws = im.workingSet.stats();
+  stats.workingSet = ws;
+  stats.frameIndex = im.frames++;
+  stats.selectMs = ws.selectMs + indexMs;
+  stats.uploadMs = ws.uploadMs;
+  stats.bricksUploaded = ws.uploaded;
+  stats.emptyNodes = ws.emptyNodes;
+  const volume::BrickCacheStats cs = im.cache.stats();
+  stats.cacheBytes = cs.bytes;
+  stats.cacheBudgetBytes = cs.budgetBytes;
+  stats.cacheBricks = static_cast<int64_t>(cs.count);
+  stats.cacheEvictions = cs.evictions - cacheEvictions;
+  const volume::BrickLoaderStats ls = im.loader.stats();
+  stats.loaderQueued = static_cast<int64_t>(ls.queued);
+  stats.loaderLoading = static_cast<int64_t>(ls.loading);
+  stats.loaderLoaded = static_cast<uint64_t>(ws.loaded);
+  stats.bytesRead = ws.bytesRead;
+  stats.poolEvictions = im.pool.stats().evictions - poolEvictions;
+  for (const volume::LoadError& e : im.workingSet.takeErrors()) stats.errors.push_back(e.message);
+  return frame;
 }
 
 Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction& tf,
                           const RaycastOptions& options) {
   Impl& im = *impl_;
-  camera.validate();
-  if (!(options.earlyTermination > 0 && options.earlyTermination <= 1)) {
-    throw Error("", fmt::format("early termination {} must be in (0, 1]", options.earlyTermination));
-  }
-  if (!(options.stepMm >= 0 && std::isfinite(options.stepMm))) {
-    throw Error("", fmt::format("step {} mm must be positive (or 0 for the default)", options.stepMm));
-  }
-  if (options.mode == RaycastMode::Iso && !std::isfinite(options.isoValue)) {
-    throw Error("", "the isovalue must be finite");
-  }
-  if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
-    throw Error("", fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
-  }
-  if (tf.color.empty() || tf.opacity.empty()) {
-    throw Error("", fmt::format("transfer function \"{}\" has no colour or no opacity points", tf.name));
-  }
-  for (const Enhancement* e : {&options.boundary, &options.silhouette}) {
-    if (e->enabled && !(std::isfinite(e->kC) && std::isfinite(e->kS) && std::isfinite(e->kE) && e->kE >= 0)) {
-      throw Error("", "enhancement: kC, kS must be finite and kE finite and >= 0");
-    }
-  }
+  validateRaycast(camera, tf, options);
+  // A still camera: no upload budget, and the loader is waited for between frames.
+  WorkingSetConfig wsc = im.workingSet.config();
+  const WorkingSetConfig saved = wsc;
+  wsc.uploadBytesPerFrame = 0;
+  im.workingSet.setConfig(wsc);
+  struct Restore {
+    WorkingSet& ws;
+    WorkingSetConfig config;
+    ~Restore() { ws.setConfig(config); }
+  } restore{im.workingSet, saved};
 
+  const int maxFrames = 8 * im.store.layout().levels() + 16;
+  std::vector<std::string> errors;
   Frame frame;
-  FrameStats& stats = frame.stats;
-  const auto selectStart = std::chrono::steady_clock::now();
-  WorkingSetOptions wso;
-  wso.mode = options.mode;
-  wso.lodPixels = options.lodPixels;
-  wso.isoValue = options.isoValue;
-  wso.slotCapacity = im.capacity;
-  const WorkingSet ws = selectWorkingSet(im.store, camera, tf, wso);
-  stats.selectMs = millisecondsSince(selectStart);
-  std::vector<CutLeaf> cut = im.residentCut(ws, stats);
-  const auto indexStart = std::chrono::steady_clock::now();
-  im.index = SpatialIndex::build(im.layout, cut);
-  const SpatialIndex& index = im.index;
-  stats.selectMs += millisecondsSince(indexStart);
-  stats.workingSetBricks = static_cast<int64_t>(ws.dataNodes.size());
-  stats.emptyNodes = ws.emptyNodes;
-  stats.poolSlots = im.capacity;
-  stats.poolSlotsUsed = static_cast<int64_t>(im.slotOfNode.size());
-  stats.poolBytes = static_cast<std::size_t>(im.capacity) * im.slotBytes;
-  stats.poolBytesUsed = static_cast<std::size_t>(stats.workingSetBricks) * im.slotBytes;
-
-  glNamedBufferData(im.nodeBuffer.id(), static_cast<GLsizeiptr>(index.nodes.size() * 4),
-                    index.nodes.data(), GL_DYNAMIC_DRAW);
-  glNamedBufferData(im.leafBuffer.id(), static_cast<GLsizeiptr>(index.leaves.size() * 4),
-                    index.leaves.data(), GL_DYNAMIC_DRAW);
-  const std::size_t leafRecords = index.leaves.size() / kLeafRecordUints;
-  if (options.stats) {
-    std::vector<uint32_t> zeros(leafRecords, 0);
-    glNamedBufferData(im.touchedBuffer.id(), static_cast<GLsizeiptr>(zeros.size() * 4), zeros.data(),
-                      GL_DYNAMIC_READ);
-  }
-  int counts[3];
-  im.uploadTransferFunction(tf, options, counts);
-
-  const int width = camera.width, height = camera.height;
-  im.ensureTargets(width, height);
-  GlProgram& prog = im.program(im.defines(tf, options, camera.projection));
-  glUseProgram(prog.id());
-
-  const Impl::RayUniforms ru = im.rayUniforms(camera);
-  const auto u3 = [&](const char* name, const std::array<float, 3>& v) {
-    glUniform3f(prog.uniform(name), v[0], v[1], v[2]);
-  };
-  u3("uEye", ru.eye);
-  u3("uForward", ru.forward);
-  u3("uRight", ru.right);
-  u3("uUp", ru.up);
-  glUniform2f(prog.uniform("uHalfExtent"), ru.halfExtent[0], ru.halfExtent[1]);
-  glUniform2f(prog.uniform("uViewport"), ru.viewport[0], ru.viewport[1]);
-  glUniformMatrix3fv(prog.uniform("uQFromPatient"), 1, GL_TRUE, ru.qFromPatient.data());
-  u3("uQOffset", ru.qOffset);
-  u3("uDomainMax", ru.domainMax);
-  const Mat4 patientFromIndex = im.store.patientFromIndex();
-  const Mat4 indexFromPatient = patientFromIndex.inverseAffine();
-  std::array<std::array<double, 3>, 3> normalFromIndex{};
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) normalFromIndex[r][c] = indexFromPatient.m[c][r];
-  }
-  setMat3(prog.uniform("uNormalFromIndex"), normalFromIndex);
-  const volume::Index3& dims = im.layout.levelDims(im.layout.leafLevel());
-  const Vec3 forward = normalize(camera.target - camera.eye);
-  glUniform1i(prog.uniform("uLeafLevel"), im.layout.leafLevel());
-  glUniform1i(prog.uniform("uMaxIterations"), static_cast<GLint>(3 * (leafRecords + 2)));
-  glUniform1f(prog.uniform("uStepMm"), static_cast<float>(im.stepMm(options)));
-  glUniform1f(prog.uniform("uInvUnitDistance"), static_cast<float>(1.0 / tf.unitDistanceMm));
-  glUniform1f(prog.uniform("uEarlyTermination"), static_cast<float>(options.earlyTermination));
-
-  // Depth mapping for gl_FragDepth: the domain's extent along the view axis.
-  double zNear = std::numeric_limits<double>::infinity(), zFar = 0;
-  for (int c = 0; c < 8; ++c) {
-    const Vec3 p = patientFromIndex.transformPoint({(c & 1) ? dims[0] - 0.5 : -0.5,
-                                                    (c & 2) ? dims[1] - 0.5 : -0.5,
-                                                    (c & 4) ? dims[2] - 0.5 : -0.5});
-    const double z = dot(p - camera.eye, forward);
-    zNear = std::min(zNear, z);
-    zFar = std::max(zFar, z);
-  }
-  zFar = std::max(zFar, 1e-3) + 1.0;
-  zNear = std::clamp(zNear - 1.0, 1e-3 * zFar, zFar * 0.5);
-  glUniform1f(prog.uniform("uNear"), static_cast<float>(zNear));
-  glUniform1f(prog.uniform("uFar"), static_cast<float>(zFar));
-
-  const double s = im.floatPool ? 1.0 : 65535.0 * im.store.header().valueScale;
-  glUniform1f(prog.uniform("uValueScale"), static_cast<float>(s));
-  glUniform1f(prog.uniform("uValueOffset"),
-              static_cast<float>(im.floatPool ? 0.0 : im.store.header().valueOffset));
-  const auto [lo, hi] = im.tfRange();
-  const double n = kTfTableSize;
-  glUniform2f(prog.uniform("uTfMap"), static_cast<float>((n - 1) / ((hi - lo) * n)),
-              static_cast<float>((-lo * (n - 1) / (hi - lo) + 0.5) / n));
-  glUniform1i(prog.uniform("uColorPoints"), counts[0]);
-  glUniform1i(prog.uniform("uOpacityPoints"), counts[1]);
-  glUniform1i(prog.uniform("uGradientPoints"), counts[2]);
-  glUniform3f(prog.uniform("uPoolInvSize"), 1.0f / static_cast<float>(im.slotGrid[0] * im.edge),
-              1.0f / static_cast<float>(im.slotGrid[1] * im.edge),
-              1.0f / static_cast<float>(im.slotGrid[2] * im.edge));
-  glUniform2i(prog.uniform("uSlotGrid"), static_cast<GLint>(im.slotGrid[0]),
-              static_cast<GLint>(im.slotGrid[0] * im.slotGrid[1]));
-  const transfer::Material& mat = tf.material;
-  glUniform4f(prog.uniform("uMaterial"), mat.ambient, mat.diffuse, mat.specular, mat.specularPower);
-  glUniform3f(prog.uniform("uBoundary"), static_cast<float>(options.boundary.kC),
-              static_cast<float>(options.boundary.kS), static_cast<float>(options.boundary.kE));
-  glUniform3f(prog.uniform("uSilhouette"), static_cast<float>(options.silhouette.kC),
-              static_cast<float>(options.silhouette.kS), static_cast<float>(options.silhouette.kE));
-  glUniform1f(prog.uniform("uIsoValue"), static_cast<float>(options.isoValue));
-  glUniform1f(prog.uniform("uGradientScale"), im.store.header().gradientScale);
-
-  glBindTextureUnit(0, im.pool.id());
-  glUniform1i(prog.uniform("uPool"), 0);
-  glBindTextureUnit(1, im.tfTable.id());
-  glUniform1i(prog.uniform("uTf"), 1);
-  if (im.hasGradientPool) {
-    glBindTextureUnit(2, im.gradientPool.id());
-    glUniform1i(prog.uniform("uGradientPool"), 2);
-  }
-  glBindTextureUnit(3, im.cellRange.id());
-  glUniform1i(prog.uniform("uCellRange"), 3);
-  glBindTextureUnit(4, im.tfNonZero.id());
-  glUniform1i(prog.uniform("uTfNonZero"), 4);
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, im.nodeBuffer.id());
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, im.leafBuffer.id());
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, im.tfPointBuffer.id());
-  if (options.stats) glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, im.touchedBuffer.id());
-
-  glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
-  const GLenum buffers[3] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2};
-  glNamedFramebufferDrawBuffers(im.fbo.id(), options.stats ? 3 : 2, buffers);
-  glViewport(0, 0, width, height);
-  glDisable(GL_BLEND);
-  glEnable(GL_DEPTH_TEST);
-  glDepthFunc(GL_ALWAYS);
-  glDepthMask(GL_TRUE);
-  glBindVertexArray(im.vao.id());
-  throwOnGlError("setting up the raycasting pass");
-
-  glFinish();
-  const auto drawStart = std::chrono::steady_clock::now();
-  glDrawArrays(GL_TRIANGLES, 0, 3);
-  glFinish();
-  stats.drawMs = millisecondsSince(drawStart);
-  throwOnGlError("raycasting");
-
-  // Read back (GL rows run bottom-up; Image row 0 is the top).
-  const std::size_t pixels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
-  std::vector<float> color(pixels * 4), aux(pixels * 4);
-  glPixelStorei(GL_PACK_ALIGNMENT, 4);
-  glGetTextureImage(im.targets[0].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(color.size() * 4), color.data());
-  glGetTextureImage(im.targets[1].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(aux.size() * 4), aux.data());
-  std::vector<float> counters;
-  if (options.stats) {
-    counters.resize(pixels * 4);
-    glGetTextureImage(im.targets[2].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(counters.size() * 4),
-                      counters.data());
-  }
-  frame.image = Image(width, height);
-  const bool wantValue = options.mode != RaycastMode::Dvr;
-  if (wantValue) frame.value.assign(pixels, std::numeric_limits<float>::quiet_NaN());
-  if (options.stats) {
-    frame.leafCounts.assign(pixels, 0);
-    frame.samples.assign(pixels, 0);
-  }
-  double samples = 0, contributing = 0, leavesVisited = 0;
-  for (int y = 0; y < height; ++y) {
-    const std::size_t src = static_cast<std::size_t>(height - 1 - y) * static_cast<std::size_t>(width);
-    const std::size_t dst = static_cast<std::size_t>(y) * static_cast<std::size_t>(width);
-    std::copy_n(&color[src * 4], static_cast<std::size_t>(width) * 4, &frame.image.rgba[dst * 4]);
-    for (int x = 0; x < width; ++x) {
-      const float* a = &aux[(src + static_cast<std::size_t>(x)) * 4];
-      frame.image.depth[dst + static_cast<std::size_t>(x)] = a[0];
-      if (wantValue && std::isfinite(a[0])) frame.value[dst + static_cast<std::size_t>(x)] = a[1];
-      if (options.stats) {
-        const float* c = &counters[(src + static_cast<std::size_t>(x)) * 4];
-        frame.samples[dst + static_cast<std::size_t>(x)] = c[0];
-        frame.leafCounts[dst + static_cast<std::size_t>(x)] = c[2];
-        samples += c[0];
-        contributing += c[1];
-        leavesVisited += c[2];
-        if (c[2] > 0) ++stats.pixelsCovered;
-      }
+  double uploadMs = 0, selectMs = 0;
+  int64_t uploaded = 0;
+  for (int i = 0; i < maxFrames; ++i) {
+    frame = renderFrame(camera, tf, options);
+    errors.insert(errors.end(), frame.stats.errors.begin(), frame.stats.errors.end());
+    uploadMs += frame.stats.uploadMs;
+    selectMs += frame.stats.selectMs;
+    uploaded += frame.stats.bricksUploaded;
+    if (im.workingSet.settled()) break;
+    if (im.workingSet.stats().waitingForData > 0 || im.workingSet.stats().requestsQueued > 0) {
+      im.loader.waitIdle();
     }
   }
-  if (options.stats) {
-    const double covered = std::max<double>(1.0, static_cast<double>(stats.pixelsCovered));
-    stats.samplesPerPixel = samples / covered;
-    stats.contributingPerPixel = contributing / covered;
-    stats.leavesPerPixel = leavesVisited / covered;
-    std::vector<uint32_t> touched(leafRecords);
-    glGetNamedBufferSubData(im.touchedBuffer.id(), 0, static_cast<GLsizeiptr>(touched.size() * 4), touched.data());
-    stats.bricksTouched = std::count(touched.begin(), touched.end(), 1u);
-  }
-  glBindFramebuffer(GL_FRAMEBUFFER, 0);
-  throwOnGlError("reading the frame back");
+  if (!errors.empty()) throw Error("", errors.front());
+  frame.stats.uploadMs = uploadMs;
+  frame.stats.selectMs = selectMs;
+  frame.stats.bricksUploaded = uploaded;
+  frame.stats.errors = std::move(errors);
   return frame;
 }
+
+std::vector<std::string> GpuRenderer::variantDefines(const transfer::TransferFunction& tf,
+                                                     const RaycastOptions& options,
+                                                     Projection projection) const {
+  return impl_->raycaster.variantDefines(tf, options, projection);
+}
+
+const std::string& GpuRenderer::variantSource(const transfer::TransferFunction& tf,
+                                              const RaycastOptions& options,
+                                              Projection projection) {
+  return impl_->raycaster.variantSource(tf, options, projection);
+}
+
+unsigned GpuRenderer::variantProgram(const transfer::TransferFunction& tf,
+                                     const RaycastOptions& options, Projection projection) {
+  return impl_->raycaster.variantProgram(tf, options, projection);
+}
+
+int64_t GpuRenderer::poolSlots() const { return impl_->pool.stats().slots; }
+double GpuRenderer::defaultStepMm() const { return impl_->raycaster.defaultStepMm(); }
+const RendererConfig& GpuRenderer::config() const { return impl_->config; }
+
+void GpuRenderer::setStreaming(std::size_t uploadBytesPerFrame, Visibility visibility, int threshold) {
+  if (threshold < 1) throw Error("", fmt::format("visibility threshold {} must be at least 1 pixel", threshold));
+  impl_->config.uploadBytesPerFrame = uploadBytesPerFrame;
+  impl_->config.visibility = visibility;
+  impl_->config.visibilityThreshold = threshold;
+  impl_->workingSet.setConfig(workingSetConfig(impl_->config));
+}
+
+const SpatialIndex& GpuRenderer::lastIndex() const { return impl_->index; }
+OctreeRay GpuRenderer::pixelRay(const Camera& camera, int x, int y) const {
+  return impl_->raycaster.pixelRay(camera, x, y);
+}
+std::array<float, 3> GpuRenderer::domainMax(const Camera& camera) const {
+  return impl_->raycaster.domainMax(camera);
+}
+const WorkingSet& GpuRenderer::workingSet() const { return impl_->workingSet; }
+const BrickPool& GpuRenderer::pool() const { return impl_->pool; }
+const volume::BrickCache& GpuRenderer::cache() const { return impl_->cache; }
+const volume::BrickLoader& GpuRenderer::loader() const { return impl_->loader; }
 
 }  // namespace octoray::gpu

@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::gpu {
 namespace {

@@ -8,7 +8,7 @@
 #include <cmath>
 #include <limits>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 
 namespace octoray::gpu {
 namespace {

@@ -3,12 +3,14 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <optional>
 #include <queue>
+#include <stdexcept>
 
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/transfer/opacity_table.h"
 
 namespace octoray::gpu {
@@ -79,11 +81,6 @@ class EmptinessTest {
   double mipThreshold_ = 0;
 };
 
-struct Candidate {
-  double pixels;  // projected voxel size
-  int64_t id;
-  bool operator<(const Candidate& o) const { return pixels < o.pixels; }
-};
 
 class Projector {
  public:
@@ -173,64 +170,379 @@ class Projector {
 
 }  // namespace
 
-WorkingSet selectWorkingSet(const volume::StoreReader& store, const Camera& camera,
-                            const transfer::TransferFunction& tf, const WorkingSetOptions& options) {
+Visibility parseVisibility(const std::string& name) {
+  if (name == "none") return Visibility::None;
+  if (name == "occlusion") return Visibility::Occlusion;
+  if (name == "rays") return Visibility::Rays;
+  if (name == "both") return Visibility::Both;
+  throw Error("", fmt::format("visibility \"{}\": expected occlusion, rays, both or none", name));
+}
+
+const char* visibilityName(Visibility v) {
+  switch (v) {
+    case Visibility::None: return "none";
+    case Visibility::Occlusion: return "occlusion";
+    case Visibility::Rays: return "rays";
+    case Visibility::Both: return "both";
+  }
+  return "?";
+}
+
+struct WorkingSet::FrameContext {
+  Camera camera;
+  WorkingSetOptions options;
+  EmptinessTest emptiness;
+  Projector projector;
+  FrameContext(const volume::StoreReader& store, const Camera& c,
+               const transfer::TransferFunction& tf, const WorkingSetOptions& o)
+      : camera(c), options(o), emptiness(store, tf, o), projector(store, camera) {}
+};
+
+namespace {
+
+double millisecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
+
+WorkingSet::WorkingSet(const volume::StoreReader& store, BrickPool& pool, volume::BrickCache& cache,
+                       volume::BrickLoader& loader, WorkingSetConfig config)
+    : store_(store), pool_(pool), cache_(cache), loader_(loader), config_(config),
+      layout_(store.layout()) {
+  // The root stands in for everything not yet loaded: read it now, keep it for good.
+  auto root = std::make_shared<const volume::Brick>(store.readBrick(0));
+  cache_.insert(root);
+  pool_.beginFrame();
+  if (!upload(*root)) throw Error(store.path(), "the GPU pool has no slot for the root brick");
+}
+
+bool WorkingSet::upload(const volume::Brick& brick) {
+  const BrickPool::Placement p = pool_.upload(brick);
+  if (p.slot < 0) return false;
+  if (p.evicted >= 0) addResidentCount(p.evicted, -1);
+  addResidentCount(brick.nodeId, +1);
+  ++stats_.uploaded;
+  stats_.uploadBytes += pool_.stats().slotBytes;
+  return true;
+}
+
+void WorkingSet::addResidentCount(int64_t id, int delta) {
+  for (int64_t n = id; n >= 0; n = layout_.parent(n)) {
+    int32_t& count = residentBelow_[n];
+    count += delta;
+    if (count == 0) residentBelow_.erase(n);
+  }
+}
+
+bool WorkingSet::coverable(int64_t id) {
+  if (pool_.resident(id)) return true;
+  if (!residentBelow_.count(id)) return false;
+  if (const auto it = coverMemo_.find(id); it != coverMemo_.end()) return it->second != 0;
+  bool ok = layout_.nodeKey(id).level < layout_.leafLevel();
+  if (ok) {
+    for (int64_t child : layout_.children(id)) {
+      if (!context_->emptiness.empty(store_.node(child)) && !coverable(child)) {
+        ok = false;
+        break;
+      }
+    }
+  }
+  coverMemo_[id] = ok ? 1 : 0;
+  return ok;
+}
+
+bool WorkingSet::wantsSplit(int64_t id, double pixels, bool inFrustum) const {
+  if (layout_.nodeKey(id).level >= layout_.leafLevel()) return false;
+  const double lod = context_->options.lodPixels;
+  if (lod > 0 && pixels <= lod) return false;
+  if (!inFrustum) return false;
+  if (config_.visibility == Visibility::None) return true;
+  const auto it = state_.find(id);
+  if (it == state_.end() || lastFeedbackFrame_ == 0) return false;  // never seen: wait for feedback
+  const NodeState& s = it->second;
+  if (innerNodes_.count(id)) {
+    // Split last frame: stays split until none of its leaves was seen for mergeAfterFrames.
+    return s.seenFrame > 0 &&
+           s.seenFrame + static_cast<uint64_t>(std::max(1, config_.mergeAfterFrames)) > lastFeedbackFrame_;
+  }
+  if (s.feedbackFrame != lastFeedbackFrame_ || s.seenFrame != lastFeedbackFrame_) return false;
+  if (config_.visibility == Visibility::Rays || config_.visibility == Visibility::Both) {
+    return s.finerFrame == lastFeedbackFrame_;
+  }
+  return true;
+}
+
+const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
+                                               const transfer::TransferFunction& tf,
+                                               const WorkingSetOptions& options) {
   if (!(options.lodPixels >= 0 && std::isfinite(options.lodPixels))) {
     throw Error("", fmt::format("--lod-pixels {} must be 0 or positive", options.lodPixels));
   }
   camera.validate();
-  const volume::OctreeLayout& layout = store.layout();
-  const EmptinessTest emptiness(store, tf, options);
-  const Projector projector(store, camera);
-  const int64_t capacity = options.slotCapacity > 0 ? options.slotCapacity
-                                                    : std::numeric_limits<int64_t>::max();
+  const auto start = std::chrono::steady_clock::now();
+  ++frame_;
+  stats_ = {};
+  pool_.beginFrame();
+  pool_.pin(0);
+  FrameContext context(store_, camera, tf, options);
+  context_ = &context;
+  coverMemo_.clear();
 
-  WorkingSet ws;
-  if (emptiness.empty(store.node(0))) {
-    ws.emptyNodes = 1;
-    return ws;
+  // What the loader finished and what failed since the last frame.
+  const std::vector<int64_t> loaded = loader_.poll();
+  stats_.loaded = static_cast<int64_t>(loaded.size());
+  for (int64_t id : loaded) {
+    const volume::NodeRecord& n = store_.node(id);
+    stats_.bytesRead += uint64_t{n.payloadBytes} + n.gradientBytes;
   }
-  std::priority_queue<Candidate> queue;
-  queue.push({projector.projectedPixels(0), 0});
-  int64_t slots = 1;  // non-empty nodes queued or kept
-  std::vector<int64_t> kept;
+  for (volume::LoadError& e : loader_.takeErrors()) {
+    if (failed_.insert(e.id).second) errors_.push_back(std::move(e));
+  }
+
+  std::unordered_map<int64_t, float> requests;
+  const auto request = [&](int64_t id, double priority) {
+    if (failed_.count(id) || cache_.contains(id)) return;
+    const auto p = static_cast<float>(std::isfinite(priority) ? priority : 1e30);
+    auto [it, inserted] = requests.emplace(id, p);
+    if (!inserted) it->second = std::max(it->second, p);
+  };
+
+  // 1. Cover with resident bricks only.
+  struct Candidate {
+    double priority;
+    int64_t id;
+    bool operator<(const Candidate& o) const { return priority < o.priority; }
+  };
+  std::vector<int64_t> leaves;
+  std::vector<Candidate> refine;
+  std::vector<std::pair<int, int64_t>> merges;  // level, id
+  std::unordered_set<int64_t> inner;
+  const auto cover = [&] {
+    leaves.clear();
+    refine.clear();
+    merges.clear();
+    inner.clear();
+    stats_.emptyNodes = 0;
+    if (context.emptiness.empty(store_.node(0))) {
+      stats_.emptyNodes = 1;
+      return;
+    }
+    std::vector<int64_t> stack{0};
+    std::vector<int64_t> children;
+    while (!stack.empty()) {
+      const int64_t id = stack.back();
+      stack.pop_back();
+      const double pixels = context.projector.projectedPixels(id);
+      const bool want = wantsSplit(id, pixels, context.projector.visible(id));
+      const bool resident = pool_.resident(id);
+      children.clear();
+      if (want || !resident) {
+        for (int64_t child : layout_.children(id)) {
+          if (context.emptiness.empty(store_.node(child))) {
+            ++stats_.emptyNodes;
+          } else {
+            children.push_back(child);
+          }
+        }
+      }
+      const bool childrenCovered =
+          std::all_of(children.begin(), children.end(), [&](int64_t c) { return coverable(c); });
+      if (want && childrenCovered) {
+        inner.insert(id);
+        stack.insert(stack.end(), children.begin(), children.end());
+      } else if (resident) {
+        leaves.push_back(id);
+        if (want) refine.push_back({pixels, id});
+      } else if (childrenCovered) {
+        // Its own brick is missing: its descendants stand in until it arrives.
+        inner.insert(id);
+        stack.insert(stack.end(), children.begin(), children.end());
+        merges.emplace_back(layout_.nodeKey(id).level, id);
+      } else {
+        throw std::logic_error("working set: a node reached by the cover is not coverable");
+      }
+    }
+    for (int64_t id : leaves) pool_.pin(id);
+  };
+  cover();
+
+  // 2. Merges: nodes that no longer need their children, once their own brick is here.
+  const std::size_t slotBytes = pool_.stats().slotBytes;
+  const auto budgetAllows = [&](std::size_t bricks) {
+    return config_.uploadBytesPerFrame == 0 ||
+           stats_.uploadBytes + bricks * slotBytes <= config_.uploadBytesPerFrame;
+  };
+  std::sort(merges.begin(), merges.end());
+  pendingMerges_ = 0;
+  bool anyMerged = false;
+  const auto uploadStart = std::chrono::steady_clock::now();
+  double uploadMs = 0;
+  for (const auto& [level, id] : merges) {
+    if (failed_.count(id)) continue;  // its descendants stand in for good
+    const std::shared_ptr<const volume::Brick> brick = cache_.find(id);
+    if (brick && budgetAllows(1) && pool_.freeSlots() > 0 && upload(*brick)) {
+      ++stats_.merged;
+      anyMerged = true;
+      continue;
+    }
+    if (!brick) {
+      request(id, context.projector.projectedPixels(id));
+      ++pendingMerges_;
+    } else if (!budgetAllows(1)) {
+      ++pendingMerges_;
+    }
+  }
+  uploadMs += millisecondsSince(uploadStart);
+  if (anyMerged) {
+    coverMemo_.clear();
+    cover();
+  }
+
+  // 3. Refinement, largest projected voxel first.
+  std::priority_queue<Candidate> queue(refine.begin(), refine.end());
+  std::unordered_set<int64_t> splitNow;
+  std::vector<int64_t> added;
+  std::vector<int64_t> missing;
   while (!queue.empty()) {
     const Candidate c = queue.top();
     queue.pop();
-    const volume::NodeKey key = layout.nodeKey(c.id);
-    const bool fineEnough = key.level == layout.leafLevel() ||
-                            (options.lodPixels > 0 && c.pixels <= options.lodPixels);
-    if (fineEnough) {
-      kept.push_back(c.id);
+    missing.clear();
+    bool anyFailed = false;
+    std::vector<int64_t> children;
+    for (int64_t child : layout_.children(c.id)) {
+      if (context.emptiness.empty(store_.node(child))) continue;
+      children.push_back(child);
+      if (!pool_.resident(child)) missing.push_back(child);
+      if (failed_.count(child)) anyFailed = true;
+    }
+    if (anyFailed) {
+      ++stats_.stoppedByError;
       continue;
     }
-    if (!projector.visible(c.id)) {
-      ++ws.culledNodes;
-      kept.push_back(c.id);
-      continue;
-    }
-    std::vector<int64_t> nonEmpty;
-    for (int64_t child : layout.children(c.id)) {
-      if (emptiness.empty(store.node(child))) {
-        ++ws.emptyNodes;
-      } else {
-        nonEmpty.push_back(child);
+    bool allCached = true;
+    for (int64_t m : missing) {
+      if (!cache_.contains(m)) {
+        allCached = false;
+        request(m, c.priority);
       }
     }
-    if (slots - 1 + static_cast<int64_t>(nonEmpty.size()) > capacity) {
-      ++ws.capacityLimited;
-      kept.push_back(c.id);
+    ++stats_.wantRefine;
+    if (!allCached) {
+      ++stats_.waitingForData;
       continue;
     }
-    slots += static_cast<int64_t>(nonEmpty.size()) - 1;
-    for (int64_t child : nonEmpty) queue.push({projector.projectedPixels(child), child});
+    if (static_cast<int64_t>(missing.size()) > pool_.freeSlots()) {
+      ++stats_.stoppedByPool;
+      continue;
+    }
+    if (!budgetAllows(missing.size())) {
+      ++stats_.stoppedByBudget;
+      continue;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    bool uploaded = true;
+    for (int64_t m : missing) {
+      const std::shared_ptr<const volume::Brick> brick = cache_.find(m);
+      if (!brick) {  // evicted from the CPU cache since contains()
+        request(m, c.priority);
+        uploaded = false;
+      } else if (!upload(*brick)) {
+        uploaded = false;
+      }
+    }
+    uploadMs += millisecondsSince(t0);
+    if (!uploaded) {
+      ++stats_.waitingForData;
+      continue;
+    }
+    --stats_.wantRefine;
+    ++stats_.split;
+    splitNow.insert(c.id);
+    inner.insert(c.id);
+    for (int64_t child : children) {
+      pool_.pin(child);
+      const double pixels = context.projector.projectedPixels(child);
+      // New nodes have no feedback yet: with feedback on they wait for the next frame.
+      added.push_back(child);  // dropped again below if it is split in turn
+      if (wantsSplit(child, pixels, context.projector.visible(child))) queue.push({pixels, child});
+    }
   }
-  ws.dataNodes.reserve(kept.size());
-  for (int64_t id : kept) {
-    ws.dataNodes.push_back(layout.nodeKey(id));
-    ws.finestProjectedPixels = std::max(ws.finestProjectedPixels, projector.projectedPixels(id));
+  stats_.uploadMs = uploadMs;
+
+  // The new cut, and the frame's requests.
+  cut_.clear();
+  cutNodes_.clear();
+  const auto addLeaf = [&](int64_t id) {
+    CutLeaf leaf;
+    leaf.key = layout_.nodeKey(id);
+    leaf.slot = static_cast<uint32_t>(pool_.slotOf(id));
+    leaf.maxValue = store_.node(id).maxValue;
+    cut_.push_back(leaf);
+    cutNodes_.push_back(id);
+  };
+  for (int64_t id : leaves) {
+    if (!splitNow.count(id)) addLeaf(id);
   }
-  return ws;
+  for (int64_t id : added) {
+    if (!splitNow.count(id)) addLeaf(id);
+  }
+  innerNodes_ = std::move(inner);
+  stats_.leaves = static_cast<int64_t>(cut_.size());
+  for (int64_t id : cutNodes_) {
+    const auto it = state_.find(id);
+    if (config_.visibility == Visibility::None || it == state_.end() ||
+        it->second.feedbackFrame != lastFeedbackFrame_ || lastFeedbackFrame_ == 0) {
+      ++stats_.unknownLeaves;
+    } else if (it->second.seenFrame == lastFeedbackFrame_) {
+      ++stats_.visibleLeaves;
+    } else {
+      ++stats_.hiddenLeaves;
+    }
+  }
+
+  std::vector<volume::LoadRequest> list;
+  list.reserve(requests.size());
+  std::unordered_set<int64_t> current;
+  for (const auto& [id, priority] : requests) {
+    list.push_back({id, priority});
+    current.insert(id);
+    if (!lastRequests_.count(id)) ++stats_.requestsIssued;
+  }
+  const std::unordered_set<int64_t> loadedSet(loaded.begin(), loaded.end());
+  for (int64_t id : lastRequests_) {
+    if (!current.count(id) && !loadedSet.count(id) && !cache_.contains(id)) ++stats_.requestsCancelled;
+  }
+  loader_.setRequests(list);
+  lastRequests_ = std::move(current);
+  stats_.requestsQueued = static_cast<int64_t>(list.size());
+  stats_.selectMs = millisecondsSince(start) - uploadMs;
+  context_ = nullptr;
+  return cut_;
 }
+
+void WorkingSet::applyFeedback(std::span<const LeafFeedback> feedback) {
+  lastFeedbackFrame_ = frame_;
+  for (const LeafFeedback& f : feedback) {
+    if (f.seen) pool_.markSeen(f.node);
+    bool first = true;
+    for (int64_t n = f.node; n >= 0; n = layout_.parent(n)) {
+      NodeState& s = state_[n];
+      if (!first && s.feedbackFrame == frame_ && (!f.seen || s.seenFrame == frame_)) break;
+      s.feedbackFrame = frame_;
+      if (f.seen) s.seenFrame = frame_;
+      if (first && f.wantsFiner) s.finerFrame = frame_;
+      first = false;
+    }
+  }
+}
+
+bool WorkingSet::settled() const {
+  return stats_.split == 0 && stats_.merged == 0 && stats_.waitingForData == 0 &&
+         stats_.stoppedByBudget == 0 && pendingMerges_ == 0 &&
+         (config_.visibility == Visibility::None || stats_.unknownLeaves == 0);
+}
+
+std::vector<volume::LoadError> WorkingSet::takeErrors() { return std::exchange(errors_, {}); }
 
 }  // namespace octoray::gpu

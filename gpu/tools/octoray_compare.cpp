@@ -12,7 +12,7 @@
 #include <string>
 
 #include "cli_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"
 

@@ -27,7 +27,7 @@
 #include <vector>
 
 #include "cli_support.h"
-#include "octoray/dicom/error.h"
+#include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/gl_context.h"

@@ -22,7 +22,7 @@
 
 #include <nlohmann/json_fwd.hpp>
 
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/geometry.h"
 
 namespace octoray {
 struct VolumeInfo;

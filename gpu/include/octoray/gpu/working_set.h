@@ -1,48 +1,172 @@
 #pragma once
-// The static working set (paper §4, without the dynamic parts of §6): a cut through the
-// store's octree chosen on the CPU for one view and transfer function.
+// The working set (paper 003 §4 and §6): the cut through the store's octree that the
+// raycaster draws, kept across frames and changed a little every frame, with the bricks it
+// needs streamed from disk by the BrickLoader into the CPU BrickCache and from there into the
+// GPU BrickPool. The render thread never reads the disk: what is not in the CPU cache is
+// requested and the cut stays coarser there until a later frame finds it cached.
 //
-// A node is empty when nothing in it can show: in DVR when the TF's opacity is exactly zero
-// over the node's [min, max] (the opacity summed-area table; gradient opacity and boundary
-// enhancement only lower opacity, so the test stays sound), in isosurface mode when the
-// isovalue lies outside [min, max], in MIP when the node's maximum lies below the lowest value
-// of non-zero opacity (such a node can only raise a maximum that stays invisible). Empty
-// nodes are not refined and take no pool slot.
+// Emptiness. A node is empty when nothing in it can show: in DVR when the TF's opacity is
+// exactly zero over the node's [min, max] (the opacity summed-area table; gradient opacity and
+// boundary enhancement only lower opacity, so the test stays sound), in isosurface mode when
+// the isovalue lies outside [min, max], in MIP when the node's maximum lies below the lowest
+// value of non-zero opacity. Empty nodes are not drawn, take no slot and are never loaded. The
+// test runs every frame on the node table, so a new TF or isovalue reloads nothing.
 //
-// Refinement runs largest-first on a priority queue keyed by the node's projected voxel size
-// in pixels (its voxel edge in mm, scaled by the image height over the visible height at the
-// node's nearest distance): a non-empty node is split while that size exceeds `lodPixels`
-// (0: always split down to the leaf level, the reference's resolution), while the node can be
-// seen (inside the view frustum), and while the pool has slots for its non-empty children.
+// A node wants splitting when it is not a leaf of the store, its voxels project larger than
+// `lodPixels` at its nearest point (0: always), it meets the view frustum, and the visibility
+// feedback does not rule it out: with feedback on, only nodes the last feedback saw (some
+// rays reached them, or their occlusion query passed) are split, and with ray feedback only
+// those for which some ray wanted finer data than they hold.
+//
+// One frame (update()):
+//  1. Cover. From the root down, every node is either split into its non-empty children or
+//     kept as a leaf of the cut, using only bricks already in the GPU pool: a node that wants
+//     splitting is split when each non-empty child can be covered by resident bricks; a node
+//     that does not is kept when resident, and otherwise stays covered by its descendants (a
+//     merge waiting for its brick). The root is read when the working set is made and never
+//     leaves the pool, so the cover always exists: never a hole, only coarser data.
+//  2. Merge. Nodes waiting for their own brick are uploaded from the CPU cache when it has it
+//     (else requested), replacing their descendants in the cut and freeing their slots.
+//  3. Refine, largest projected voxel (times the feedback's weight) first: a leaf of the cut
+//     that wants splitting is split when its missing non-empty children are all in the CPU
+//     cache, the pool has slots not used by this frame's cut, and the frame's upload budget
+//     allows; otherwise its missing children are requested from the loader with the leaf's
+//     priority. Refinement continues below a split node in the same frame only where the
+//     feedback allows it (with feedback off; with it on, new nodes wait for the next
+//     frame's feedback).
+//  4. The frame's requests replace the loader's queue (stale ones are cancelled); the cut's
+//     bricks are pinned in the pool for the frame.
+// After drawing, applyFeedback() records which leaves were seen; visibility propagates to
+// ancestors. A node none of whose leaves was seen for `mergeAfterFrames` frames is merged back
+// (invisible nodes are not refined, and their slots are the first to be reused).
 
 #include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
+#include "octoray/gpu/brick_pool.h"
 #include "octoray/gpu/camera.h"
+#include "octoray/gpu/spatial_index.h"
 #include "octoray/transfer/transfer_function.h"
+#include "octoray/volume/brick_cache.h"
+#include "octoray/volume/brick_loader.h"
 #include "octoray/volume/store_reader.h"
 
 namespace octoray::gpu {
 
 enum class RaycastMode { Dvr, Iso, Mip };
 
+// Which visibility feedback prunes the working set.
+enum class Visibility { None, Occlusion, Rays, Both };
+Visibility parseVisibility(const std::string& name);  // throws octoray::Error
+const char* visibilityName(Visibility v);
+
 struct WorkingSetOptions {
   RaycastMode mode = RaycastMode::Dvr;
   double lodPixels = 1.0;  // target projected voxel size; 0: finest level everywhere
   double isoValue = 0;     // RaycastMode::Iso
-  int64_t slotCapacity = 0;  // pool slots; 0: unlimited
 };
 
-struct WorkingSet {
-  std::vector<volume::NodeKey> dataNodes;  // non-empty leaves of the cut, front of the queue first
-  int64_t emptyNodes = 0;     // nodes found empty (not refined, no slot)
-  int64_t culledNodes = 0;    // non-empty nodes kept coarse because they are outside the view
-  int64_t capacityLimited = 0;  // non-empty nodes kept coarse because the pool was full
-  double finestProjectedPixels = 0;  // largest projected voxel size among the data leaves
+struct WorkingSetConfig {
+  std::size_t uploadBytesPerFrame = std::size_t{64} << 20;  // 0: unlimited
+  Visibility visibility = Visibility::Rays;
+  int mergeAfterFrames = 4;  // frames unseen before a subtree is merged back
 };
 
-// Throws octoray::Error for a negative or non-finite lodPixels.
-WorkingSet selectWorkingSet(const volume::StoreReader& store, const Camera& camera,
-                            const transfer::TransferFunction& tf, const WorkingSetOptions& options);
+// One frame's figures (the C++ side of octoray-render --json and the viewer's status bar).
+struct WorkingSetStats {
+  int64_t leaves = 0;         // data leaves of the cut
+  int64_t emptyNodes = 0;     // nodes found empty while covering and refining
+  int64_t visibleLeaves = 0;  // leaves the last feedback saw
+  int64_t hiddenLeaves = 0;   // leaves the last feedback did not see
+  int64_t unknownLeaves = 0;  // leaves with no feedback yet (new this frame, or feedback off)
+  int64_t split = 0, merged = 0;  // nodes split / merged this frame
+  int64_t wantRefine = 0;     // leaves that want splitting after this frame (0: converged)
+  int64_t waitingForData = 0; // of those, leaves whose children are not in the CPU cache
+  int64_t stoppedByPool = 0, stoppedByBudget = 0, stoppedByError = 0;
+  int64_t requestsIssued = 0;     // new loader requests this frame
+  int64_t requestsQueued = 0;     // the frame's whole request set
+  int64_t requestsCancelled = 0;  // queued last frame, no longer wanted and not loaded
+  int64_t loaded = 0;             // bricks the loader finished since the last frame
+  uint64_t bytesRead = 0;         // their compressed bytes in the store file
+  int64_t uploaded = 0;           // bricks copied from the CPU cache to the pool
+  uint64_t uploadBytes = 0;
+  double selectMs = 0, uploadMs = 0;
+};
+
+class WorkingSet {
+ public:
+  // Reads the root brick (the only read on the calling thread, ever) into the cache and the
+  // pool, where it stays. Throws octoray::Error when the root cannot be read.
+  WorkingSet(const volume::StoreReader& store, BrickPool& pool, volume::BrickCache& cache,
+             volume::BrickLoader& loader, WorkingSetConfig config = {});
+
+  // One frame: cover, merge, refine, request (see above). Never blocks on the disk.
+  // Throws octoray::Error for a negative or non-finite lodPixels or a bad camera.
+  const std::vector<CutLeaf>& update(const Camera& camera, const transfer::TransferFunction& tf,
+                                     const WorkingSetOptions& options);
+  // The per-leaf feedback of the frame drawn from the last update(): for each data leaf,
+  // `seen` (the ray or query feedback saw it) and `wantsFiner` (ray feedback: some ray wanted
+  // finer data there; occlusion feedback leaves it true).
+  struct LeafFeedback {
+    int64_t node = -1;
+    bool seen = false;
+    bool wantsFiner = true;
+  };
+  void applyFeedback(std::span<const LeafFeedback> feedback);
+
+  const std::vector<CutLeaf>& cut() const { return cut_; }
+  // Node ids of cut() in the same order.
+  const std::vector<int64_t>& cutNodes() const { return cutNodes_; }
+  const WorkingSetStats& stats() const { return stats_; }
+  const WorkingSetConfig& config() const { return config_; }
+  void setConfig(const WorkingSetConfig& config) { config_ = config; }
+  // Loader errors (corrupted or unreadable bricks) since the last call, each node once; the
+  // nodes concerned are never requested again and their ancestors stand in for them.
+  std::vector<volume::LoadError> takeErrors();
+  // True when the last frame changed nothing and waits for nothing: no split or merge, no
+  // refinement or merge waiting for data or the upload budget, and (with feedback on) no leaf
+  // without feedback. A working set held back by a full pool or by failed bricks is settled.
+  bool settled() const;
+
+ private:
+  struct NodeState {
+    uint64_t feedbackFrame = 0;  // frame of the last feedback that covered the node
+    uint64_t seenFrame = 0;      // frame of the last feedback that saw it
+    uint64_t finerFrame = 0;     // frame of the last feedback where a ray wanted finer
+  };
+  bool wantsSplit(int64_t id, double pixels, bool inFrustum) const;
+  bool coverable(int64_t id);
+  void addResidentCount(int64_t id, int delta);
+  bool upload(const volume::Brick& brick);  // into the pool; false when it is full
+
+  const volume::StoreReader& store_;
+  BrickPool& pool_;
+  volume::BrickCache& cache_;
+  volume::BrickLoader& loader_;
+  WorkingSetConfig config_;
+  const volume::OctreeLayout& layout_;
+
+  std::vector<CutLeaf> cut_;
+  std::vector<int64_t> cutNodes_;
+  std::unordered_map<int64_t, NodeState> state_;
+  std::unordered_map<int64_t, int32_t> residentBelow_;  // resident nodes in the subtree (incl.)
+  std::unordered_map<int64_t, int8_t> coverMemo_;
+  std::unordered_set<int64_t> failed_;
+  std::unordered_set<int64_t> lastRequests_;
+  std::vector<volume::LoadError> errors_;
+  std::unordered_set<int64_t> innerNodes_;  // the last frame's split nodes (cut ancestors)
+  uint64_t frame_ = 0;
+  uint64_t lastFeedbackFrame_ = 0;
+  int64_t pendingMerges_ = 0;
+  WorkingSetStats stats_;
+  // Per frame: emptiness and projection of the current view (working_set.cpp).
+  struct FrameContext;
+  FrameContext* context_ = nullptr;
+};
 
 }  // namespace octoray::gpu

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "octoray/dicom/geometry.h"
+#include "octoray/core/geometry.h"
 
 namespace octoray {
 class VolumeSource;

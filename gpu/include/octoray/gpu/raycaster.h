@@ -1,0 +1,143 @@
+#pragma once
+// The raycasting pass (paper 003 §5): one full-screen fragment pass that walks the spatial
+// index of the cut it is given (spatial_index.h) through the bricks of the BrickPool (see
+// gpu/shaders/raycast.frag.glsl). It draws the cut; it does not choose it (working_set.h).
+//
+// The pass draws into its own framebuffer (colour RGBA32F premultiplied, an auxiliary
+// RGBA32F target with the depth in mm of the first contribution and the MIP maximum or the
+// isovalue, per-pixel counters when asked, and a 32-bit depth buffer holding the depth of the
+// ray's last sample where it terminated, for the occlusion queries of the working set), so it
+// runs the same in a GLFW window's context and headless (gl_context.h). Every call needs the
+// GL context current on the calling thread.
+//
+// Optical model: the CPU reference's (reference_renderer.h), in single precision on the
+// working set's bricks: the ray's chord through the domain is cut into n = ceil(length / step)
+// equal steps sampled at their midpoints; a leaf of level l samples every 2^(L-1-l)-th of
+// them, each sample standing for the steps it covers, with the opacity corrected to that
+// length (§5.3). Shader variants are compiled from the enabled effects: with shading off no
+// gradient code exists, with MIP no shading or opacity code.
+//
+// Ray-guided feedback (GigaVoxels, paper 000): with a LeafFeedbackCounts to fill, the pass
+// counts per leaf record the rays that reached the leaf with length (before terminating) and
+// the rays that wanted finer data there than the leaf holds.
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "octoray/gpu/brick_pool.h"
+#include "octoray/gpu/camera.h"
+#include "octoray/gpu/image.h"
+#include "octoray/gpu/spatial_index.h"
+#include "octoray/gpu/working_set.h"
+#include "octoray/transfer/transfer_function.h"
+#include "octoray/volume/store_reader.h"
+
+namespace octoray::gpu {
+
+class GlProgram;
+
+struct Enhancement {
+  bool enabled = false;
+  double kC = 0.0, kS = 1.0, kE = 1.0;
+};
+
+struct RaycastOptions {
+  RaycastMode mode = RaycastMode::Dvr;
+  double stepMm = 0;               // 0: 0.25 x the smallest spacing (the reference's default)
+  double earlyTermination = 0.99;  // in (0, 1]
+  enum class Shading { FromTransferFunction, On, Off } shading = Shading::FromTransferFunction;
+  bool gradientOpacity = true;     // the TF's gradient-opacity points, if it has any
+  Enhancement boundary;            // alpha *= kC + kS |grad|^kE
+  Enhancement silhouette;          // view-dependent transparency: alpha *= kC + kS (1 - |n.v|)^kE
+  double isoValue = 0;
+  // MIP: Exact, the maximum of the trilinear interpolant along the whole chord (the
+  // reference's; equal to it at 16 bits); Sampled, its maximum over the step's samples only
+  // (faster, never higher; what other raycasters show).
+  enum class MipMethod { Exact, Sampled } mip = MipMethod::Exact;
+  double lodPixels = 1.0;          // working-set refinement target; 0: finest level everywhere
+  bool stats = false;              // per-pixel counters (a separate variant)
+  // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
+  // (exact: the picture is bit for bit the same; off only to measure what it saves).
+  bool cellSkipping = true;
+};
+
+struct FrameStats {
+  double drawMs = 0;         // the raycasting pass, GPU finished
+  double selectMs = 0;       // working-set update and index build (CPU)
+  double uploadMs = 0;       // texture uploads from the CPU cache (never disk reads)
+  int64_t bricksUploaded = 0;
+  int64_t workingSetBricks = 0;  // data leaves of the cut
+  int64_t emptyNodes = 0;
+  int64_t poolSlots = 0, poolSlotsUsed = 0;
+  std::size_t poolBytes = 0, poolBytesUsed = 0;
+  // With RaycastOptions::stats only:
+  double samplesPerPixel = 0;       // classified samples (MIP: trilinear cells visited) per covered pixel
+  double contributingPerPixel = 0;  // samples with non-zero opacity (iso: hits)
+  double leavesPerPixel = 0;        // leaves visited with non-zero length, empty ones included
+  int64_t bricksTouched = 0;        // data leaves any ray sampled
+  int64_t pixelsCovered = 0;        // pixels whose ray meets the domain
+  // The working set's frame (GpuRenderer fills these).
+  WorkingSetStats workingSet;
+  double feedbackMs = 0;            // reading the feedback back and applying it
+  int64_t feedbackDelayFrames = 0;  // frames between a view and the feedback the cut used
+  int64_t frameIndex = 0;
+  // The CPU cache and the loader after the frame.
+  uint64_t cacheBytes = 0, cacheBudgetBytes = 0, cacheEvictions = 0;  // evictions: this frame
+  int64_t cacheBricks = 0;
+  int64_t loaderQueued = 0, loaderLoading = 0;
+  uint64_t loaderLoaded = 0;         // bricks loaded this frame (by the background threads)
+  uint64_t bytesRead = 0;            // compressed store bytes those bricks came from
+  uint64_t poolEvictions = 0;        // this frame
+  std::vector<std::string> errors;   // bricks that failed to load (each named once)
+};
+
+struct Frame {
+  Image image;                // rgba premultiplied; depth: mm of the first contribution
+  std::vector<float> value;   // MIP: maximum per pixel (NaN: missed); iso: isovalue at hits
+  std::vector<float> leafCounts, samples;  // per pixel, with RaycastOptions::stats
+  FrameStats stats;
+};
+
+struct LeafFeedbackCounts {
+  std::vector<uint32_t> rays;   // per leaf record of the index: rays that sampled the leaf
+  std::vector<uint32_t> finer;  // rays that wanted finer data in it
+};
+
+// Throws octoray::Error for a bad camera, TF or option.
+void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
+                     const RaycastOptions& options);
+
+class Raycaster {
+ public:
+  Raycaster(const volume::StoreReader& store, const BrickPool& pool);
+  ~Raycaster();
+  Raycaster(const Raycaster&) = delete;
+  Raycaster& operator=(const Raycaster&) = delete;
+
+  // Draws `index` (whose slots refer to the pool). Throws octoray::Error for bad cameras or
+  // options and GL errors. FrameStats' working-set fields are left to the caller.
+  Frame draw(const Camera& camera, const transfer::TransferFunction& tf,
+             const RaycastOptions& options, const SpatialIndex& index,
+             LeafFeedbackCounts* feedback = nullptr);
+
+  std::vector<std::string> variantDefines(const transfer::TransferFunction& tf,
+                                          const RaycastOptions& options,
+                                          Projection projection = Projection::Perspective) const;
+  const std::string& variantSource(const transfer::TransferFunction& tf,
+                                   const RaycastOptions& options,
+                                   Projection projection = Projection::Perspective);
+  unsigned variantProgram(const transfer::TransferFunction& tf, const RaycastOptions& options,
+                          Projection projection = Projection::Perspective);
+  double defaultStepMm() const;
+  OctreeRay pixelRay(const Camera& camera, int x, int y) const;
+  std::array<float, 3> domainMax(const Camera& camera) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace octoray::gpu
