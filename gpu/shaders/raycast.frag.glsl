@@ -278,8 +278,13 @@ void main() {
       stats.w += 1.0;
       touched[record / 8u] = 1u;
 #endif
-      uint slot = leaves[record];
-      int levelsUp = uLeafLevel - level;
+      // The brick drawn: the leaf's own, or (hidden leaves) an ancestor's dataUp levels up.
+      uint slotWord = leaves[record];
+      uint slot = slotWord & 0xFFFFFFu;
+      int dataUp = int(slotWord >> 24u);
+      float dataDim = dim * exp2(float(dataUp));
+      vec3 dataMin = floor(boxMin / dataDim) * dataDim;
+      int levelsUp = uLeafLevel - level + dataUp;
       float levelScale = exp2(float(levelsUp));
 #ifdef FEEDBACK
       atomicAdd(feedback[record / 4u], 1u);
@@ -295,8 +300,8 @@ void main() {
       }
 #endif
       // texel(t) = p0 + t * p1 inside this leaf's slot.
-      float texelsPerQ = float(BRICK_SIZE) / dim;
-      vec3 p0 = slotOrigin(slot) + float(BORDER) + (qo - boxMin) * texelsPerQ;
+      float texelsPerQ = float(BRICK_SIZE) / dataDim;
+      vec3 p0 = slotOrigin(slot) + float(BORDER) + (qo - dataMin) * texelsPerQ;
       vec3 p1 = dq * texelsPerQ;
       int k0 = clamp(int(ceil((t - t0) / delta - 0.5)), 0, n);
       int k1 = clamp(int(ceil((tEnd - t0) / delta - 0.5)), 0, n);
@@ -305,7 +310,7 @@ void main() {
 #ifdef MODE_DVR
 #ifdef CELL_SKIPPING
       // The leaf's brick in its own voxels: x(t) = b0 + t * b1, voxel centres at i + 0.5.
-      vec3 b0 = (qo - boxMin) * texelsPerQ, b1 = p1;
+      vec3 b0 = (qo - dataMin) * texelsPerQ, b1 = p1;
       int kLimit = k0;  // samples below kLimit lie in a cell known to hold some opacity
 #else
       int kLimit = k1;

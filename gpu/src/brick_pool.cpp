@@ -8,6 +8,7 @@
 
 #include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
+#include "octoray/gpu/spatial_index.h"
 
 namespace octoray::gpu {
 namespace {
@@ -89,6 +90,7 @@ BrickPool::BrickPool(const volume::StoreReader& store, std::size_t budgetBytes, 
   const int64_t perAxis = std::max<int64_t>(1, max3d / edge_);
   int64_t want = static_cast<int64_t>(budgetBytes / slotBytes_);
   want = std::min<int64_t>(want, static_cast<int64_t>(store.nodes().size()));
+  want = std::min<int64_t>(want, int64_t{kMaxSlots} - 1);  // the spatial index's slot field
   slotGrid_ = slotGridFor(want, perAxis);
   capacity_ = slotGrid_[0] * slotGrid_[1] * slotGrid_[2];
   slots_.assign(static_cast<std::size_t>(capacity_), {});

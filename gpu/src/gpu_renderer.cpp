@@ -85,11 +85,12 @@ Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFun
     std::vector<WorkingSet::LeafFeedback> leaves;
     leaves.reserve(static_cast<std::size_t>(im.index.dataLeaves));
     const auto threshold = static_cast<uint32_t>(im.config.visibilityThreshold);
+    const std::vector<int64_t>& cutNodes = im.workingSet.cutNodes();
     for (std::size_t r = 0; r < counts.rays.size(); ++r) {
-      const uint32_t slot = im.index.leaves[r * kLeafRecordUints];
-      if (slot == kNoSlot) continue;
+      const int32_t c = im.index.cutIndex[r];
+      if (c < 0) continue;
       WorkingSet::LeafFeedback f;
-      f.node = im.pool.nodeIn(slot);
+      f.node = cutNodes[static_cast<std::size_t>(c)];
       f.seen = counts.rays[r] >= threshold;
       f.wantsFiner = counts.finer[r] >= threshold;
       leaves.push_back(f);
@@ -101,6 +102,8 @@ Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFun
 
   const WorkingSetStats& ws = im.workingSet.stats();
   stats.workingSet = ws;
+  stats.workingSetBricks = ws.bricks;
+  stats.poolBytesUsed = static_cast<std::size_t>(ws.bricks) * im.pool.stats().slotBytes;
   stats.frameIndex = im.frames++;
   stats.selectMs = ws.selectMs + indexMs;
   stats.uploadMs = ws.uploadMs;

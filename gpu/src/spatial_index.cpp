@@ -36,10 +36,16 @@ SpatialIndex SpatialIndex::build(const volume::OctreeLayout& layout,
     throw Error("", fmt::format("spatial index: {} octree levels not supported (1..20)", levels));
   }
   // The cut's leaves, and every ancestor of one (those become inner nodes).
-  std::unordered_map<uint64_t, std::pair<uint32_t, float>> leafSlot;
+  struct LeafData {
+    uint32_t slotWord;
+    float maxValue;
+    int32_t cutIndex;
+  };
+  std::unordered_map<uint64_t, LeafData> leafSlot;
   std::unordered_set<uint64_t> ancestors;
   leafSlot.reserve(cut.size() * 2);
-  for (const CutLeaf& leaf : cut) {
+  for (std::size_t cutIndex = 0; cutIndex < cut.size(); ++cutIndex) {
+    const CutLeaf& leaf = cut[cutIndex];
     const volume::NodeKey& k = leaf.key;
     if (k.level < 0 || k.level >= levels) {
       throw Error("", fmt::format("spatial index: node level {} outside 0..{}", k.level, levels - 1));
@@ -51,8 +57,16 @@ SpatialIndex SpatialIndex::build(const volume::OctreeLayout& layout,
                                     k.brick[0], k.brick[1], k.brick[2], k.level));
       }
     }
+    uint32_t slotWord = leaf.slot;
+    if (leaf.slot != kNoSlot) {
+      if (leaf.slot >= kMaxSlots || leaf.dataLevelsUp < 0 || leaf.dataLevelsUp > k.level) {
+        throw Error("", fmt::format("spatial index: slot {} or data level offset {} out of range",
+                                    leaf.slot, leaf.dataLevelsUp));
+      }
+      slotWord = leaf.slot | (static_cast<uint32_t>(leaf.dataLevelsUp) << kSlotBits);
+    }
     if (!leafSlot.emplace(packKey(k.level, k.brick[0], k.brick[1], k.brick[2]),
-                          std::pair{leaf.slot, leaf.maxValue}).second) {
+                          LeafData{slotWord, leaf.maxValue, static_cast<int32_t>(cutIndex)}).second) {
       throw Error("", fmt::format("spatial index: node ({}, {}, {}) of level {} listed twice",
                                   k.brick[0], k.brick[1], k.brick[2], k.level));
     }
@@ -102,9 +116,10 @@ SpatialIndex SpatialIndex::build(const volume::OctreeLayout& layout,
       continue;
     }
     const auto found = leafSlot.find(key);
-    const uint32_t slot = found == leafSlot.end() ? kNoSlot : found->second.first;
+    const uint32_t slot = found == leafSlot.end() ? kNoSlot : found->second.slotWord;
     const float maxValue =
-        found == leafSlot.end() ? -std::numeric_limits<float>::infinity() : found->second.second;
+        found == leafSlot.end() ? -std::numeric_limits<float>::infinity() : found->second.maxValue;
+    index.cutIndex.push_back(found == leafSlot.end() ? -1 : found->second.cutIndex);
     const auto record = static_cast<uint32_t>(leafInfo.size());
     if (record >= kMaxIndexEntries) throw Error("", "spatial index: too many leaves");
     index.nodes[p.entry] = word(slot == kNoSlot ? kEmptyLeaf : kDataLeaf, record);
@@ -209,7 +224,9 @@ int64_t traverseRay(const SpatialIndex& index, const OctreeRay& ray, float t0, f
       LeafCrossing crossing;
       crossing.entry = entry;
       crossing.kind = kindOf(w);
-      crossing.slot = index.leaves[record * kLeafRecordUints];
+      const uint32_t slotWord = index.leaves[record * kLeafRecordUints];
+      crossing.slot = slotWord == kNoSlot ? kNoSlot : slotWord & (kMaxSlots - 1);
+      crossing.dataLevelsUp = slotWord == kNoSlot ? 0 : static_cast<int>(slotWord >> kSlotBits);
       crossing.level = level;
       crossing.boxMin = boxMin;
       crossing.boxDim = dim;

@@ -220,43 +220,63 @@ WorkingSet::WorkingSet(const volume::StoreReader& store, BrickPool& pool, volume
 bool WorkingSet::upload(const volume::Brick& brick) {
   const BrickPool::Placement p = pool_.upload(brick);
   if (p.slot < 0) return false;
-  if (p.evicted >= 0) addResidentCount(p.evicted, -1);
-  addResidentCount(brick.nodeId, +1);
   ++stats_.uploaded;
   stats_.uploadBytes += pool_.stats().slotBytes;
   return true;
 }
 
-void WorkingSet::addResidentCount(int64_t id, int delta) {
-  for (int64_t n = id; n >= 0; n = layout_.parent(n)) {
-    int32_t& count = residentBelow_[n];
-    count += delta;
-    if (count == 0) residentBelow_.erase(n);
+std::pair<int64_t, int> WorkingSet::nearestResidentAncestor(int64_t id) const {
+  int up = 0;
+  for (int64_t n = id; n >= 0; n = layout_.parent(n), ++up) {
+    if (pool_.resident(n)) return {n, up};
   }
+  throw std::logic_error("working set: the root brick left the pool");
 }
 
-bool WorkingSet::coverable(int64_t id) {
-  if (pool_.resident(id)) return true;
-  if (!residentBelow_.count(id)) return false;
-  if (const auto it = coverMemo_.find(id); it != coverMemo_.end()) return it->second != 0;
-  bool ok = layout_.nodeKey(id).level < layout_.leafLevel();
-  if (ok) {
-    for (int64_t child : layout_.children(id)) {
-      if (!context_->emptiness.empty(store_.node(child)) && !coverable(child)) {
-        ok = false;
-        break;
-      }
-    }
-  }
-  coverMemo_[id] = ok ? 1 : 0;
-  return ok;
+std::pair<int64_t, int> WorkingSet::drawnFrom(int64_t id, bool unseen) const {
+  if (!unseen) return nearestResidentAncestor(id);
+  // What no ray sees may be drawn from anything that covers it: the root, which is always
+  // resident and drawn anyway, so an unseen leaf costs no brick of its own.
+  return {0, layout_.nodeKey(id).level};
 }
 
-bool WorkingSet::wantsSplit(int64_t id, double pixels, bool inFrustum) const {
+bool WorkingSet::hiddenNow(int64_t id) const {
+  if (config_.visibility == Visibility::None || lastFeedbackFrame_ == 0) return false;
+  const auto it = state_.find(id);
+  if (it == state_.end() || it->second.feedbackFrame != lastFeedbackFrame_) return false;
+  return it->second.seenFrame + static_cast<uint64_t>(std::max(1, config_.mergeAfterFrames)) <=
+         lastFeedbackFrame_;
+}
+
+bool WorkingSet::wantsSplitIgnoringFeedback(int64_t id, double pixels, bool inFrustum) const {
   if (layout_.nodeKey(id).level >= layout_.leafLevel()) return false;
   const double lod = context_->options.lodPixels;
   if (lod > 0 && pixels <= lod) return false;
-  if (!inFrustum) return false;
+  return inFrustum;
+}
+
+uint64_t WorkingSet::viewDigest(const Camera& c, const transfer::TransferFunction& tf,
+                                const WorkingSetOptions& o) {
+  uint64_t h = 1469598103934665603ull;  // FNV-1a over the bytes of the fields
+  const auto mix = [&](const void* data, std::size_t size) {
+    const auto* bytes = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < size; ++i) h = (h ^ bytes[i]) * 1099511628211ull;
+  };
+  const double camera[] = {c.eye.x, c.eye.y, c.eye.z, c.target.x, c.target.y, c.target.z,
+                           c.up.x, c.up.y, c.up.z, c.fovYDegrees, c.orthoHeightMm,
+                           static_cast<double>(c.width), static_cast<double>(c.height),
+                           static_cast<double>(c.projection == Projection::Perspective),
+                           static_cast<double>(o.mode), o.isoValue, o.lodPixels, tf.unitDistanceMm};
+  mix(camera, sizeof(camera));
+  for (const transfer::OpacityPoint& p : tf.opacity) {
+    mix(&p.value, sizeof(p.value));
+    mix(&p.alpha, sizeof(p.alpha));
+  }
+  return h;
+}
+
+bool WorkingSet::wantsSplit(int64_t id, double pixels, bool inFrustum) const {
+  if (!wantsSplitIgnoringFeedback(id, pixels, inFrustum)) return false;
   if (config_.visibility == Visibility::None) return true;
   const auto it = state_.find(id);
   if (it == state_.end() || lastFeedbackFrame_ == 0) return false;  // never seen: wait for feedback
@@ -267,6 +287,7 @@ bool WorkingSet::wantsSplit(int64_t id, double pixels, bool inFrustum) const {
            s.seenFrame + static_cast<uint64_t>(std::max(1, config_.mergeAfterFrames)) > lastFeedbackFrame_;
   }
   if (s.feedbackFrame != lastFeedbackFrame_ || s.seenFrame != lastFeedbackFrame_) return false;
+  if (s.hiddenMergeFrame > viewChangedFrame_) return false;  // merged back for this very view
   if (config_.visibility == Visibility::Rays || config_.visibility == Visibility::Both) {
     return s.finerFrame == lastFeedbackFrame_;
   }
@@ -286,8 +307,11 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
   pool_.beginFrame();
   pool_.pin(0);
   FrameContext context(store_, camera, tf, options);
+  if (const uint64_t digest = viewDigest(camera, tf, options); digest != viewDigest_) {
+    viewDigest_ = digest;
+    viewChangedFrame_ = frame_;
+  }
   context_ = &context;
-  coverMemo_.clear();
 
   // What the loader finished and what failed since the last frame.
   const std::vector<int64_t> loaded = loader_.poll();
@@ -318,12 +342,17 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
   std::vector<Candidate> refine;
   std::vector<std::pair<int, int64_t>> merges;  // level, id
   std::unordered_set<int64_t> inner;
+  int64_t hiddenMerges = 0;
+  std::unordered_set<int64_t> hiddenProxies;  // resident leaves drawn from an ancestor
   const auto cover = [&] {
     leaves.clear();
     refine.clear();
     merges.clear();
     inner.clear();
+    hiddenProxies.clear();
     stats_.emptyNodes = 0;
+    stats_.hiddenWaiting = 0;
+    hiddenMerges = 0;
     if (context.emptiness.empty(store_.node(0))) {
       stats_.emptyNodes = 1;
       return;
@@ -334,10 +363,12 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
       const int64_t id = stack.back();
       stack.pop_back();
       const double pixels = context.projector.projectedPixels(id);
-      const bool want = wantsSplit(id, pixels, context.projector.visible(id));
+      const bool inFrustum = context.projector.visible(id);
+      const bool want = wantsSplit(id, pixels, inFrustum);
       const bool resident = pool_.resident(id);
+      const bool wasInner = innerNodes_.count(id) > 0;
       children.clear();
-      if (want || !resident) {
+      if (want) {
         for (int64_t child : layout_.children(id)) {
           if (context.emptiness.empty(store_.node(child))) {
             ++stats_.emptyNodes;
@@ -346,44 +377,66 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
           }
         }
       }
-      const bool childrenCovered =
-          std::all_of(children.begin(), children.end(), [&](int64_t c) { return coverable(c); });
-      if (want && childrenCovered) {
-        inner.insert(id);
-        stack.insert(stack.end(), children.begin(), children.end());
-      } else if (resident) {
-        leaves.push_back(id);
-        if (want) refine.push_back({pixels, id});
-      } else if (childrenCovered) {
-        // Its own brick is missing: its descendants stand in until it arrives.
-        inner.insert(id);
-        stack.insert(stack.end(), children.begin(), children.end());
-        merges.emplace_back(layout_.nodeKey(id).level, id);
-      } else {
-        throw std::logic_error("working set: a node reached by the cover is not coverable");
+      if (config_.visibility != Visibility::None && wasInner) {
+        const auto st = state_.find(id);
+        const bool seenNow = st != state_.end() && st->second.seenFrame == lastFeedbackFrame_;
+        if (want && !seenNow) ++stats_.hiddenWaiting;
+        if (!want && lastFeedbackFrame_ > 0 && !seenNow && st != state_.end() &&
+            wantsSplitIgnoringFeedback(id, pixels, inFrustum)) {
+          st->second.hiddenMergeFrame = frame_;
+          ++hiddenMerges;
+        }
       }
+      // Split: the previous frame's split nodes stay split (children without their own brick
+      // are drawn from an ancestor's); new splits need every child resident (else step 3).
+      const bool childrenReady =
+          wasInner || std::all_of(children.begin(), children.end(),
+                                  [&](int64_t c) { return pool_.resident(c); });
+      if (want && childrenReady) {
+        inner.insert(id);
+        stack.insert(stack.end(), children.begin(), children.end());
+        continue;
+      }
+      leaves.push_back(id);
+      const bool hidden = hiddenNow(id);
+      if (want) refine.push_back({pixels, id});
+      if (resident && !(hidden && id != 0)) {
+        pool_.pin(id);
+        if (id != 0 && config_.visibility != Visibility::None && lastFeedbackFrame_ > 0) {
+          const auto st = state_.find(id);
+          if (st != state_.end() && st->second.feedbackFrame == lastFeedbackFrame_ &&
+              st->second.seenFrame != lastFeedbackFrame_) {
+            ++stats_.hiddenWaiting;  // unseen: drawn from an ancestor after mergeAfterFrames
+          }
+        }
+        continue;
+      }
+      // Drawn from its nearest resident ancestor: an unseen leaf gives its slot up; a leaf
+      // without its brick asks for it unless it wants its children instead.
+      if (resident) hiddenProxies.insert(id);
+      pool_.pin(drawnFrom(id, resident).first);
+      if (!resident && !hidden && !want) merges.emplace_back(layout_.nodeKey(id).level, id);
     }
-    for (int64_t id : leaves) pool_.pin(id);
   };
   cover();
 
   // 2. Merges: nodes that no longer need their children, once their own brick is here.
   const std::size_t slotBytes = pool_.stats().slotBytes;
+  // The first split or merge of a frame is always allowed, so that a budget below one node's
+  // children still makes progress.
   const auto budgetAllows = [&](std::size_t bricks) {
-    return config_.uploadBytesPerFrame == 0 ||
+    return config_.uploadBytesPerFrame == 0 || stats_.uploadBytes == 0 ||
            stats_.uploadBytes + bricks * slotBytes <= config_.uploadBytesPerFrame;
   };
   std::sort(merges.begin(), merges.end());
   pendingMerges_ = 0;
-  bool anyMerged = false;
   const auto uploadStart = std::chrono::steady_clock::now();
   double uploadMs = 0;
   for (const auto& [level, id] : merges) {
     if (failed_.count(id)) continue;  // its descendants stand in for good
     const std::shared_ptr<const volume::Brick> brick = cache_.find(id);
     if (brick && budgetAllows(1) && pool_.freeSlots() > 0 && upload(*brick)) {
-      ++stats_.merged;
-      anyMerged = true;
+      ++stats_.fetched;
       continue;
     }
     if (!brick) {
@@ -394,10 +447,7 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
     }
   }
   uploadMs += millisecondsSince(uploadStart);
-  if (anyMerged) {
-    coverMemo_.clear();
-    cover();
-  }
+  stats_.merged += hiddenMerges;
 
   // 3. Refinement, largest projected voxel first.
   std::priority_queue<Candidate> queue(refine.begin(), refine.end());
@@ -440,6 +490,8 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
       ++stats_.stoppedByBudget;
       continue;
     }
+    // The resident children first, so that uploading the missing ones cannot evict them.
+    for (int64_t child : children) pool_.pin(child);
     const auto t0 = std::chrono::steady_clock::now();
     bool uploaded = true;
     for (int64_t m : missing) {
@@ -473,11 +525,20 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
   // The new cut, and the frame's requests.
   cut_.clear();
   cutNodes_.clear();
+  std::unordered_set<int64_t> bricks;
   const auto addLeaf = [&](int64_t id) {
     CutLeaf leaf;
     leaf.key = layout_.nodeKey(id);
-    leaf.slot = static_cast<uint32_t>(pool_.slotOf(id));
+    int64_t data = id;
+    if (hiddenProxies.count(id) || !pool_.resident(id)) {
+      const auto [ancestor, up] = drawnFrom(id, hiddenProxies.count(id) > 0);
+      data = ancestor;
+      leaf.dataLevelsUp = up;
+      ++stats_.proxyLeaves;
+    }
+    leaf.slot = static_cast<uint32_t>(pool_.slotOf(data));
     leaf.maxValue = store_.node(id).maxValue;
+    bricks.insert(data);
     cut_.push_back(leaf);
     cutNodes_.push_back(id);
   };
@@ -489,6 +550,7 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
   }
   innerNodes_ = std::move(inner);
   stats_.leaves = static_cast<int64_t>(cut_.size());
+  stats_.bricks = static_cast<int64_t>(bricks.size());
   for (int64_t id : cutNodes_) {
     const auto it = state_.find(id);
     if (config_.visibility == Visibility::None || it == state_.end() ||
@@ -538,8 +600,8 @@ void WorkingSet::applyFeedback(std::span<const LeafFeedback> feedback) {
 }
 
 bool WorkingSet::settled() const {
-  return stats_.split == 0 && stats_.merged == 0 && stats_.waitingForData == 0 &&
-         stats_.stoppedByBudget == 0 && pendingMerges_ == 0 &&
+  return stats_.split == 0 && stats_.merged == 0 && stats_.fetched == 0 && stats_.waitingForData == 0 &&
+         stats_.stoppedByBudget == 0 && pendingMerges_ == 0 && stats_.hiddenWaiting == 0 &&
          (config_.visibility == Visibility::None || stats_.unknownLeaves == 0);
 }
 

@@ -7,7 +7,11 @@
 //     --preset NAME | --tf FILE [--tf-name NAME]  [--iso HU]  --size WxH
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
+//      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|none]
+//      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
 //      [--boundary KC,KS,KE] [--silhouette KC,KS,KE]] | --reference
+// --path renders a camera path one frame each, with the working set carried across frames
+// and bricks streamed in the background (the interaction benchmark; camera_path.h).
 
 #include <fmt/format.h>
 #include <tbb/global_control.h>
@@ -30,6 +34,7 @@
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/camera.h"
+#include "octoray/gpu/camera_path.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gpu_renderer.h"
 #include "octoray/gpu/image_io.h"
@@ -55,7 +60,9 @@ struct Arguments {
   std::string mip = "exact";
   double lodPixels = 1.0, orbitDegrees = 0;
   int frames = 1, threads = 0;
-  std::size_t poolMib = 1024;
+  std::size_t poolMib = 1024, cacheMib = 2048, uploadMibPerFrame = 64;
+  std::string visibility = "rays", cameraPath, statsOut;
+  int visibilityThreshold = 4;
   std::string boundary, silhouette;
 };
 
@@ -195,6 +202,93 @@ class TemporaryStore {
   std::filesystem::path path_;
 };
 
+// Resident and peak resident memory of this process (MiB), from /proc/self/status.
+std::pair<double, double> residentMib() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  double rss = 0, peak = 0;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) rss = std::atof(line.c_str() + 6) / 1024.0;
+    if (line.rfind("VmHWM:", 0) == 0) peak = std::atof(line.c_str() + 6) / 1024.0;
+  }
+  return {rss, peak};
+}
+
+// One frame's figures (the JSON of --json's frames and --stats).
+nlohmann::json frameRecord(const gpu::Frame& frame, double ms) {
+  const gpu::FrameStats& s = frame.stats;
+  const gpu::WorkingSetStats& w = s.workingSet;
+  const auto [rss, peak] = residentMib();
+  return {{"frame", s.frameIndex},
+          {"ms", ms},
+          {"selectMs", s.selectMs},
+          {"uploadMs", s.uploadMs},
+          {"drawMs", s.drawMs},
+          {"feedbackMs", s.feedbackMs},
+          {"workingSetBricks", s.workingSetBricks},
+          {"visibleLeaves", w.visibleLeaves},
+          {"hiddenLeaves", w.hiddenLeaves},
+          {"unknownLeaves", w.unknownLeaves},
+          {"emptyNodes", s.emptyNodes},
+          {"split", w.split},
+          {"merged", w.merged},
+          {"wantRefine", w.wantRefine},
+          {"waitingForData", w.waitingForData},
+          {"stoppedByPool", w.stoppedByPool},
+          {"stoppedByBudget", w.stoppedByBudget},
+          {"requestsIssued", w.requestsIssued},
+          {"requestsQueued", w.requestsQueued},
+          {"requestsCancelled", w.requestsCancelled},
+          {"bricksLoaded", s.loaderLoaded},
+          {"bytesRead", s.bytesRead},
+          {"bricksUploaded", s.bricksUploaded},
+          {"bytesUploaded", w.uploadBytes},
+          {"poolSlots", s.poolSlots},
+          {"poolSlotsUsed", s.poolSlotsUsed},
+          {"poolBytes", s.poolBytes},
+          {"poolBytesUsed", s.poolBytesUsed},
+          {"poolEvictions", s.poolEvictions},
+          {"cacheBytes", s.cacheBytes},
+          {"cacheBudgetBytes", s.cacheBudgetBytes},
+          {"cacheEvictions", s.cacheEvictions},
+          {"loaderQueued", s.loaderQueued},
+          {"loaderLoading", s.loaderLoading},
+          {"feedbackDelayFrames", s.feedbackDelayFrames},
+          {"rssMib", rss},
+          {"peakRssMib", peak},
+          {"errors", s.errors}};
+}
+
+// --stats: the per-frame records as CSV (one header row) or JSON.
+void writeStats(const nlohmann::json& frames, const std::string& path) {
+  std::ofstream out(path);
+  if (!out) throw Error(path, "cannot write the statistics file");
+  if (path.size() >= 4 && path.compare(path.size() - 4, 4, ".csv") == 0) {
+    std::vector<std::string> keys;
+    for (const auto& [key, value] : frames.front().items()) {
+      if (key != "errors") keys.push_back(key);
+    }
+    for (std::size_t i = 0; i < keys.size(); ++i) out << (i ? "," : "") << keys[i];
+    out << '\n';
+    for (const nlohmann::json& f : frames) {
+      for (std::size_t i = 0; i < keys.size(); ++i) out << (i ? "," : "") << f[keys[i]].dump();
+      out << '\n';
+    }
+  } else {
+    out << frames.dump(1) << '\n';
+  }
+  if (!out) throw Error(path, "writing the statistics failed");
+}
+
+double percentile(std::vector<double> values, double p) {
+  if (values.empty()) return 0;
+  std::sort(values.begin(), values.end());
+  const double rank = p * static_cast<double>(values.size() - 1);
+  const auto lo = static_cast<std::size_t>(std::floor(rank));
+  const std::size_t hi = std::min(lo + 1, values.size() - 1);
+  return values[lo] + (rank - static_cast<double>(lo)) * (values[hi] - values[lo]);
+}
+
 int runReference(const Arguments& a) {
   const transfer::TransferFunction tf = loadTransferFunction(a);
   const RenderOptions options = renderOptions(a);
@@ -234,6 +328,109 @@ int runReference(const Arguments& a) {
                camera.width, camera.height, a.mode, renderMs, result.stats.samples, loadMs);
   }
   return 0;
+}
+
+// --path: one renderFrame() per camera, the working set carried across frames and bricks
+// streamed in the background; the per-frame records to --stats, the last frame to -o.
+int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::TransferFunction& tf,
+            gpu::RaycastOptions options, const gpu::VolumeDomain& domain,
+            const gpu::GlContext& context, double setupMs) {
+  gpu::OrbitParameters start;
+  start.azimuthDegrees = a.azimuth;
+  start.elevationDegrees = a.elevation;
+  start.zoom = a.zoom;
+  start.fovYDegrees = a.fovY;
+  start.projection = a.projection == "orthographic" ? gpu::Projection::Orthographic
+                                                    : gpu::Projection::Perspective;
+  const auto size = parseSize(a.size.empty() ? "512x512" : a.size);
+  start.width = size[0];
+  start.height = size[1];
+  std::vector<gpu::Camera> cameras = gpu::cameraPath(a.cameraPath, domain, start);
+  if (!a.size.empty() && a.cameraPath.rfind("orbit:", 0) != 0) {
+    for (gpu::Camera& c : cameras) {
+      c.width = size[0];
+      c.height = size[1];
+    }
+  }
+  // The camera stops at the first frame from which every camera is the same.
+  std::size_t stop = cameras.size() - 1;
+  while (stop > 0 && gpu::cameraToJson(cameras[stop - 1]) == gpu::cameraToJson(cameras.back())) --stop;
+
+  options.stats = false;
+  nlohmann::json frames = nlohmann::json::array();
+  std::vector<double> framesMs;
+  std::vector<std::string> errors;
+  gpu::Frame last;
+  std::optional<double> convergedMs;
+  std::optional<std::size_t> convergedFrame;
+  double sinceStopMs = 0;
+  uint64_t bytesRead = 0, maxCacheBytes = 0;
+  for (std::size_t f = 0; f < cameras.size(); ++f) {
+    const auto t0 = std::chrono::steady_clock::now();
+    last = renderer.renderFrame(cameras[f], tf, options);
+    const double ms = millisecondsSince(t0);
+    framesMs.push_back(ms);
+    frames.push_back(frameRecord(last, ms));
+    bytesRead += last.stats.bytesRead;
+    maxCacheBytes = std::max(maxCacheBytes, last.stats.cacheBytes);
+    for (const std::string& e : last.stats.errors) {
+      fmt::print(stderr, "octoray-render: {}\n", e);
+      errors.push_back(e);
+    }
+    if (f >= stop) {
+      sinceStopMs += ms;
+      if (!convergedMs && renderer.workingSet().settled()) {
+        convergedMs = sinceStopMs;
+        convergedFrame = f;
+      }
+    }
+  }
+  gpu::writePng(last.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
+  if (!a.exr.empty()) gpu::writeExr(last.image, a.exr);
+  if (!a.statsOut.empty()) writeStats(frames, a.statsOut);
+
+  const auto [rss, peak] = residentMib();
+  const double medianMs = percentile(framesMs, 0.5), p95Ms = percentile(framesMs, 0.95);
+  if (a.json) {
+    const nlohmann::json report = {
+        {"renderer", "gpu"},
+        {"glRenderer", context.renderer()},
+        {"mode", a.mode},
+        {"transferFunction", tf.name},
+        {"dims", domain.dims},
+        {"path", a.cameraPath},
+        {"visibility", a.visibility},
+        {"visibilityThreshold", a.visibilityThreshold},
+        {"uploadMibPerFrame", a.uploadMibPerFrame},
+        {"poolMib", a.poolMib},
+        {"cacheMib", a.cacheMib},
+        {"lodPixels", a.lodPixels},
+        {"framesRendered", cameras.size()},
+        {"cameraStopsAtFrame", stop},
+        {"setupMs", setupMs},
+        {"firstImageMs", setupMs + framesMs.front()},
+        {"medianMs", medianMs},
+        {"p95Ms", p95Ms},
+        {"convergedAfterStopMs", convergedMs ? nlohmann::json(*convergedMs) : nlohmann::json(nullptr)},
+        {"convergedAtFrame", convergedFrame ? nlohmann::json(*convergedFrame) : nlohmann::json(nullptr)},
+        {"bytesRead", bytesRead},
+        {"maxCacheBytes", maxCacheBytes},
+        {"peakRssMib", peak},
+        {"finalWorkingSetBricks", last.stats.workingSetBricks},
+        {"errors", errors},
+        {"frames", frames},
+        {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
+    std::cout << report.dump(2) << '\n';
+  } else {
+    fmt::print("{}: {} frames of {} ({}), median {:.0f} ms, p95 {:.0f} ms, first image {:.0f} ms, "
+               "converged {} after the camera stopped, {:.1f} MiB read, peak RSS {:.0f} MiB, "
+               "{} bricks in the final working set\n",
+               a.output, cameras.size(), a.cameraPath, a.visibility, medianMs, p95Ms,
+               setupMs + framesMs.front(),
+               convergedMs ? fmt::format("{:.0f} ms", *convergedMs) : std::string("not yet"),
+               static_cast<double>(bytesRead) / (1 << 20), peak, last.stats.workingSetBricks);
+  }
+  return errors.empty() ? 0 : 1;
 }
 
 int runGpu(const Arguments& a) {
@@ -277,8 +474,13 @@ int runGpu(const Arguments& a) {
   gpu::RendererConfig config;
   config.poolBytes = a.poolMib << 20;
   config.gradientPool = a.gradientPool;
+  config.cacheBytes = a.cacheMib << 20;
+  config.uploadBytesPerFrame = a.uploadMibPerFrame << 20;
+  config.visibility = gpu::parseVisibility(a.visibility);
+  config.visibilityThreshold = a.visibilityThreshold;
   gpu::GpuRenderer renderer(store, config);
   const double setupMs = millisecondsSince(start);
+  if (!a.cameraPath.empty()) return runPath(a, renderer, tf, options, domain, *context, loadMs + setupMs);
 
   // The timing loop: each frame's ms is the whole render() call (working-set selection,
   // uploads, index, the raycasting pass finished, read-back). With --json each frame is then
@@ -293,16 +495,7 @@ int runGpu(const Arguments& a) {
     gpu::Frame frame = renderer.render(view, tf, options);
     const double ms = millisecondsSince(start);
     framesMs.push_back(ms);
-    nlohmann::json record = {{"ms", ms},
-                             {"drawMs", frame.stats.drawMs},
-                             {"selectMs", frame.stats.selectMs},
-                             {"uploadMs", frame.stats.uploadMs},
-                             {"bricksUploaded", frame.stats.bricksUploaded},
-                             {"workingSetBricks", frame.stats.workingSetBricks},
-                             {"emptyNodes", frame.stats.emptyNodes},
-                             {"poolSlots", frame.stats.poolSlots},
-                             {"poolBytes", frame.stats.poolBytes},
-                             {"poolBytesUsed", frame.stats.poolBytesUsed}};
+    nlohmann::json record = frameRecord(frame, ms);
     if (a.json) {
       options.stats = true;
       const gpu::Frame counted = renderer.render(view, tf, options);
@@ -418,6 +611,26 @@ int main(int argc, char** argv) {
   app.add_option("--pool-mib", a.poolMib, "GPU: brick pool budget in MiB")
       ->check(CLI::Range(1, 1 << 20))
       ->capture_default_str();
+  app.add_option("--cache-mib", a.cacheMib, "GPU: CPU brick cache budget in MiB")
+      ->check(CLI::Range(1, 1 << 22))
+      ->capture_default_str();
+  app.add_option("--upload-mib-per-frame", a.uploadMibPerFrame,
+                 "GPU, --path: texture upload budget per frame in MiB; 0: unlimited")
+      ->check(CLI::Range(0, 1 << 20))
+      ->capture_default_str();
+  app.add_option("--visibility", a.visibility,
+                 "GPU: feedback that prunes the working set: rays (which leaves rays reach and "
+                 "want finer, read back each frame) or none")
+      ->check(CLI::IsMember({"rays", "none"}))
+      ->capture_default_str();
+  app.add_option("--visibility-threshold", a.visibilityThreshold,
+                 "GPU: rays (pixels) a leaf needs to count as seen")
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str();
+  app.add_option("--path", a.cameraPath,
+                 "GPU: camera path, one frame each, streaming: orbit:N[,degrees:D]"
+                 "[,zoom-from:Z1,zoom-to:Z2][,still:S] or a JSON list of cameras");
+  app.add_option("--stats", a.statsOut, "GPU, --path: per-frame statistics to OUT.csv or OUT.json");
   app.add_flag("--gradient-pool", a.gradientPool,
                "GPU: shade from the store's precomputed gradients (import with --gradients)");
   app.add_option("--boundary", a.boundary, "GPU: boundary enhancement KC,KS,KE");
@@ -439,10 +652,18 @@ int main(int argc, char** argv) {
       throw CLI::ValidationError("--preset or --tf", "one of them is required");
     }
     if (!a.camera.empty() && size->count() == 0) a.size.clear();
+    if (!a.cameraPath.empty() && (app.count("--frames") > 0 || app.count("--orbit") > 0)) {
+      throw CLI::ValidationError("--path", "replaces --frames and --orbit");
+    }
+    if (!a.statsOut.empty() && a.cameraPath.empty()) {
+      throw CLI::ValidationError("--stats", "needs --path");
+    }
     if (a.reference) {
       for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
                                   "--gradient-pool", "--boundary", "--silhouette",
-                                  "--no-cell-skipping", "--mip"}) {
+                                  "--no-cell-skipping", "--mip", "--cache-mib",
+                                  "--upload-mib-per-frame", "--visibility",
+                                  "--visibility-threshold", "--path", "--stats"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

@@ -15,7 +15,10 @@
 //            consecutive entries, child (sx, sy, sz) at first + sx + 2 sy + 4 sz.
 //            bits 30..31: kind (kEmptyLeaf, kDataLeaf, kInner); bits 0..29: for an inner
 //            node the first child's entry, for a leaf its leaf record.
-//   leaves[]: 8 uints per leaf record: [0] the brick-pool slot (kNoSlot for empty leaves),
+//   leaves[]: 8 uints per leaf record: [0] the brick-pool slot in bits 0..23 and in bits
+//            24..31 how many levels up the node whose brick it is lies (0: the leaf's own;
+//            d > 0: the leaf is drawn from its ancestor d levels up, whose brick covers it),
+//            kNoSlot for empty leaves,
 //            [1..6] neighbour pointers across faces -x, +x, -y, +y, -z, +z, [7] the bits of
 //            the node's maximum value as a float (MIP skips leaves that cannot raise a ray's
 //            maximum; -inf for empty leaves). A neighbour pointer is the entry of the smallest node of the index that
@@ -54,10 +57,14 @@ inline constexpr int kLeafRecordUints = 8;
 inline constexpr uint32_t kMaxIndexEntries = 1u << 27;
 
 // One leaf of a cut through the store's octree.
+inline constexpr uint32_t kSlotBits = 24;
+inline constexpr uint32_t kMaxSlots = 1u << kSlotBits;
+
 struct CutLeaf {
   volume::NodeKey key;
   uint32_t slot = kNoSlot;  // brick-pool slot; kNoSlot: the leaf is empty (skipped)
   float maxValue = 0;       // the node's maximum physical value (NodeRecord::maxValue)
+  int dataLevelsUp = 0;     // > 0: the slot holds the brick of the ancestor this many levels up
 };
 
 // A cut: leaves whose boxes tile the cube's cells that exist in the store. Cells of the cube
@@ -66,6 +73,7 @@ struct CutLeaf {
 struct SpatialIndex {
   std::vector<uint32_t> nodes;
   std::vector<uint32_t> leaves;
+  std::vector<int32_t> cutIndex;  // per leaf record: its position in the cut, -1 when empty
   int levels = 0;        // the store's levels (node levels run 0 .. levels - 1)
   int64_t dataLeaves = 0;
   int64_t emptyLeaves = 0;
@@ -87,6 +95,7 @@ struct LeafCrossing {
   uint32_t entry = 0;     // node entry of the leaf
   uint32_t kind = kEmptyLeaf;
   uint32_t slot = kNoSlot;
+  int dataLevelsUp = 0;
   int level = 0;
   std::array<float, 3> boxMin{};
   float boxDim = 1;

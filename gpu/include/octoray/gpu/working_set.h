@@ -80,11 +80,15 @@ struct WorkingSetConfig {
 // One frame's figures (the C++ side of octoray-render --json and the viewer's status bar).
 struct WorkingSetStats {
   int64_t leaves = 0;         // data leaves of the cut
+  int64_t bricks = 0;         // distinct bricks they are drawn from (the working set's size)
+  int64_t proxyLeaves = 0;    // leaves drawn from an ancestor's brick (theirs missing or unseen)
+  int64_t fetched = 0;        // own bricks of such leaves uploaded this frame
   int64_t emptyNodes = 0;     // nodes found empty while covering and refining
   int64_t visibleLeaves = 0;  // leaves the last feedback saw
   int64_t hiddenLeaves = 0;   // leaves the last feedback did not see
   int64_t unknownLeaves = 0;  // leaves with no feedback yet (new this frame, or feedback off)
   int64_t split = 0, merged = 0;  // nodes split / merged this frame
+  int64_t hiddenWaiting = 0;  // split nodes unseen, merged back after mergeAfterFrames
   int64_t wantRefine = 0;     // leaves that want splitting after this frame (0: converged)
   int64_t waitingForData = 0; // of those, leaves whose children are not in the CPU cache
   int64_t stoppedByPool = 0, stoppedByBudget = 0, stoppedByError = 0;
@@ -138,10 +142,23 @@ class WorkingSet {
     uint64_t feedbackFrame = 0;  // frame of the last feedback that covered the node
     uint64_t seenFrame = 0;      // frame of the last feedback that saw it
     uint64_t finerFrame = 0;     // frame of the last feedback where a ray wanted finer
+    uint64_t hiddenMergeFrame = 0;  // frame it was merged back because no leaf below was seen
   };
+  // A digest of what the view depends on (camera, TF opacity, mode, isovalue, LOD): a node
+  // merged back for being unseen is not split again for being seen until it changes (rays
+  // that reach it only through its empty children would otherwise split and merge it over and
+  // over).
+  static uint64_t viewDigest(const Camera& camera, const transfer::TransferFunction& tf,
+                             const WorkingSetOptions& options);
   bool wantsSplit(int64_t id, double pixels, bool inFrustum) const;
-  bool coverable(int64_t id);
-  void addResidentCount(int64_t id, int delta);
+  bool wantsSplitIgnoringFeedback(int64_t id, double pixels, bool inFrustum) const;
+  // The nearest ancestor-or-self with its brick in the pool, and how many levels up it is.
+  std::pair<int64_t, int> nearestResidentAncestor(int64_t id) const;
+  // The brick a leaf of the cut is drawn from, and how many levels up its node is: the
+  // nearest resident ancestor-or-self, or for an `unseen` leaf giving its slot up, the root.
+  std::pair<int64_t, int> drawnFrom(int64_t id, bool unseen) const;
+  // With feedback on: no ray saw the node for mergeAfterFrames frames.
+  bool hiddenNow(int64_t id) const;
   bool upload(const volume::Brick& brick);  // into the pool; false when it is full
 
   const volume::StoreReader& store_;
@@ -154,14 +171,14 @@ class WorkingSet {
   std::vector<CutLeaf> cut_;
   std::vector<int64_t> cutNodes_;
   std::unordered_map<int64_t, NodeState> state_;
-  std::unordered_map<int64_t, int32_t> residentBelow_;  // resident nodes in the subtree (incl.)
-  std::unordered_map<int64_t, int8_t> coverMemo_;
   std::unordered_set<int64_t> failed_;
   std::unordered_set<int64_t> lastRequests_;
   std::vector<volume::LoadError> errors_;
   std::unordered_set<int64_t> innerNodes_;  // the last frame's split nodes (cut ancestors)
   uint64_t frame_ = 0;
   uint64_t lastFeedbackFrame_ = 0;
+  uint64_t viewDigest_ = 0;
+  uint64_t viewChangedFrame_ = 0;
   int64_t pendingMerges_ = 0;
   WorkingSetStats stats_;
   // Per frame: emptiness and projection of the current view (working_set.cpp).

@@ -1,0 +1,436 @@
+// The persistent working set (working_set.h) with the loader, both caches and the raycaster
+// (gpu_renderer.h): on random camera paths with TF, mode and LOD changes, small caches and a
+// small upload budget, every frame's cut must be a valid cover of the non-empty domain
+// (checked against a brute-force walk of every leaf brick of the store, with emptiness decided
+// here from the TF's control points, not by the code under test), no ray may cross a hole
+// (every empty leaf a ray of the CPU traversal mirror crosses is truly empty), caches stay in
+// budget, the picture converges to the static one when the camera stops, feedback shrinks the
+// set without changing the picture, a new TF reloads nothing cached, and a brick corrupted on
+// disk mid-session gives one error and its ancestor.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "file_damage.h"
+#include "gl_test_support.h"
+#include "octoray/core/error.h"
+#include "octoray/gpu/brick_pool.h"
+#include "octoray/gpu/camera.h"
+#include "octoray/gpu/camera_path.h"
+#include "octoray/gpu/gpu_renderer.h"
+#include "octoray/gpu/image_metrics.h"
+#include "octoray/gpu/spatial_index.h"
+#include "octoray/transfer/transfer_function_io.h"
+#include "octoray/volume/phantom.h"
+#include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
+#include "test_paths.h"
+
+namespace octoray::gpu {
+namespace {
+
+// 128 x 120 x 96 voxels in 16^3 bricks: 4 levels, 441 nodes.
+const std::filesystem::path& phantomStore() {
+  static const std::filesystem::path path = [] {
+    volume::PhantomOptions options;
+    options.dims = {128, 120, 96};
+    options.spacingMm = {0.7, 0.75, 0.9};
+    options.seed = 11;
+    const auto source = volume::makePhantom(options);
+    const std::filesystem::path dir = test::freshTempDir("gl_working_set");
+    const std::filesystem::path store = dir / "phantom.octoray";
+    volume::BuildOptions build;
+    build.brickSize = 16;
+    build.border = 2;
+    volume::buildStore(*source, store.string(), build);
+    return store;
+  }();
+  return path;
+}
+
+VolumeDomain domainOf(const volume::StoreReader& store) {
+  return {store.layout().levelDims(store.layout().leafLevel()), store.patientFromIndex()};
+}
+
+Camera orbit(const volume::StoreReader& store, double azimuth, double elevation, double zoom, int size) {
+  OrbitParameters o;
+  o.azimuthDegrees = azimuth;
+  o.elevationDegrees = elevation;
+  o.zoom = zoom;
+  o.width = o.height = size;
+  return orbitCamera(domainOf(store), o);
+}
+
+// Independent emptiness: the TF's opacity is piecewise linear between its points and clamped
+// outside them, so it is zero over [lo, hi] exactly when it is zero at lo, at hi and at every
+// point inside.
+bool transparentOver(const transfer::TransferFunction& tf, double lo, double hi) {
+  if (tf.evaluate(lo)[3] > 0 || tf.evaluate(hi)[3] > 0) return false;
+  for (const transfer::OpacityPoint& p : tf.opacity) {
+    if (p.value >= lo && p.value <= hi && p.alpha > 0) return false;
+  }
+  return true;
+}
+
+struct View {
+  RaycastMode mode = RaycastMode::Dvr;
+  double iso = 0;
+  const transfer::TransferFunction* tf = nullptr;
+};
+
+bool emptyNode(const volume::StoreReader& store, int64_t id, const View& view) {
+  const volume::NodeRecord& n = store.node(id);
+  if (view.mode == RaycastMode::Iso) return !(view.iso >= n.minValue && view.iso <= n.maxValue);
+  // DVR: the stored range is widened by one quantisation step (the code under test widens by
+  // one too; a node it keeps that this calls empty is only a wasted slot, not a hole).
+  const double q = store.sampleFormat() == volume::SampleFormat::UInt16 ? store.header().valueScale : 0;
+  return transparentOver(*view.tf, n.minValue - q, n.maxValue + q);
+}
+
+// Brute force over every leaf brick of the store: at most one node of the cut among it and its
+// ancestors, and exactly one when none of them is empty; every cut node non-empty and resident
+// in the slot the index names.
+void expectValidCover(const GpuRenderer& renderer, const volume::StoreReader& store, const View& view,
+                      const std::string& where) {
+  const volume::OctreeLayout& layout = store.layout();
+  const WorkingSet& ws = renderer.workingSet();
+  const std::set<int64_t> cut(ws.cutNodes().begin(), ws.cutNodes().end());
+  ASSERT_EQ(cut.size(), ws.cutNodes().size()) << where << ": a node listed twice";
+  for (std::size_t i = 0; i < ws.cutNodes().size(); ++i) {
+    const int64_t id = ws.cutNodes()[i];
+    ASSERT_LT(ws.cut()[i].slot, static_cast<uint32_t>(renderer.pool().stats().slots)) << where;
+    // Its own brick, or (drawn from an ancestor) the brick of the ancestor it names.
+    int64_t data = id;
+    for (int up = 0; up < ws.cut()[i].dataLevelsUp; ++up) data = layout.parent(data);
+    ASSERT_GE(data, 0) << where;
+    ASSERT_EQ(renderer.pool().nodeIn(ws.cut()[i].slot), data) << where << ": slot of node " << id;
+    ASSERT_EQ(ws.cut()[i].key.level, layout.nodeKey(id).level) << where;
+  }
+  const int leaf = layout.leafLevel();
+  const volume::Index3& bricks = layout.levelBricks(leaf);
+  int64_t mustCover = 0;
+  for (int64_t z = 0; z < bricks[2]; ++z) {
+    for (int64_t y = 0; y < bricks[1]; ++y) {
+      for (int64_t x = 0; x < bricks[0]; ++x) {
+        int inCut = 0;
+        bool anyEmpty = false;
+        for (int64_t n = layout.nodeId({leaf, {x, y, z}}); n >= 0; n = layout.parent(n)) {
+          inCut += cut.count(n) ? 1 : 0;
+          anyEmpty = anyEmpty || emptyNode(store, n, view);
+        }
+        ASSERT_LE(inCut, 1) << where << ": overlapping nodes above leaf brick " << x << "," << y << "," << z;
+        if (!anyEmpty) {
+          ++mustCover;
+          ASSERT_EQ(inCut, 1) << where << ": hole at leaf brick " << x << "," << y << "," << z;
+        }
+      }
+    }
+  }
+  for (int64_t id : cut) {
+    // A cut node the test calls empty is allowed only when the code under test's wider bound
+    // kept it (never the other way round, which the loop above catches as a hole).
+    if (emptyNode(store, id, view)) {
+      const volume::NodeRecord& n = store.node(id);
+      ADD_FAILURE() << where << ": empty node " << id << " [" << n.minValue << ", " << n.maxValue
+                    << "] drawn";
+    }
+  }
+  EXPECT_GT(mustCover + 1, 0);
+}
+
+// True when every leaf brick of the store inside node `key`'s box has an empty node among
+// itself and its ancestors (so nothing there can show); nodes outside the store count as empty.
+bool regionEmpty(const volume::StoreReader& store, const volume::NodeKey& key, const View& view) {
+  const volume::OctreeLayout& layout = store.layout();
+  const volume::Index3& bricks = layout.levelBricks(key.level);
+  for (int a = 0; a < 3; ++a) {
+    if (key.brick[a] >= bricks[a]) return true;
+  }
+  const int64_t id = layout.nodeId(key);
+  for (int64_t n = id; n >= 0; n = layout.parent(n)) {
+    if (emptyNode(store, n, view)) return true;
+  }
+  if (key.level == layout.leafLevel()) return false;
+  for (int c = 0; c < 8; ++c) {
+    const volume::NodeKey child{key.level + 1,
+                                {2 * key.brick[0] + (c & 1), 2 * key.brick[1] + ((c >> 1) & 1),
+                                 2 * key.brick[2] + ((c >> 2) & 1)}};
+    if (!regionEmpty(store, child, view)) return false;
+  }
+  return true;
+}
+
+// The CPU traversal mirror over the last index for a grid of pixels: every empty leaf a ray
+// crosses with length must be outside the store or under an empty node.
+void expectNoHoleOnRays(const GpuRenderer& renderer, const volume::StoreReader& store,
+                        const Camera& camera, const View& view, const std::string& where) {
+  const SpatialIndex& index = renderer.lastIndex();
+  int64_t crossings = 0;
+  for (int y = 1; y < camera.height; y += 7) {
+    for (int x = 2; x < camera.width; x += 7) {
+      const OctreeRay ray = renderer.pixelRay(camera, x, y);
+      const OctreeChord chord = clipOctreeDomain(ray, renderer.domainMax(camera), 0.0f);
+      if (!(chord.tFar > chord.tNear)) continue;
+      traverseRay(index, ray, chord.tNear, chord.tFar, [&](const LeafCrossing& c) {
+        if (c.kind != kEmptyLeaf || !(c.tExit > c.tEnter)) return true;
+        ++crossings;
+        const double cells = std::exp2(c.level);
+        const std::array<int64_t, 3> b{static_cast<int64_t>(std::floor(c.boxMin[0] * cells)),
+                                       static_cast<int64_t>(std::floor(c.boxMin[1] * cells)),
+                                       static_cast<int64_t>(std::floor(c.boxMin[2] * cells))};
+        const bool empty = regionEmpty(store, {c.level, b}, view);
+        EXPECT_TRUE(empty) << where << ": pixel " << x << "," << y << " crosses a hole at level "
+                           << c.level << " brick " << b[0] << "," << b[1] << "," << b[2];
+        return empty;
+      });
+    }
+  }
+  EXPECT_GE(crossings, 0);
+}
+
+double coverage(const Image& image) {
+  double sum = 0;
+  for (std::size_t i = 3; i < image.rgba.size(); i += 4) sum += image.rgba[i];
+  return sum / (static_cast<double>(image.rgba.size()) / 4);
+}
+
+class WorkingSetTest : public GlTest {};
+
+TEST_F(WorkingSetTest, CutIsAlwaysAValidCoverWithoutHolesOnRandomPaths) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const std::vector<transfer::TransferFunction> tfs = {
+      transfer::findPreset("bone"), transfer::findPreset("soft-tissue"), transfer::findPreset("skin")};
+  for (const Visibility visibility : {Visibility::None, Visibility::Rays}) {
+    RendererConfig config;
+    const std::size_t slotBytes = std::size_t{20 * 20 * 20 * 2};
+    config.poolBytes = 60 * slotBytes;       // 60 slots of 441 nodes: refinement hits the pool
+    config.cacheBytes = 40 * (slotBytes + sizeof(volume::Brick));  // and the CPU cache evicts
+    config.uploadBytesPerFrame = 5 * slotBytes;
+    config.visibility = visibility;
+    config.visibilityThreshold = 1;
+    GpuRenderer renderer(store, config);
+    std::mt19937 random(visibility == Visibility::None ? 5 : 6);
+    std::uniform_real_distribution<double> unit(0, 1);
+    View view{RaycastMode::Dvr, 0, &tfs[0]};
+    RaycastOptions options;
+    Camera camera = orbit(store, 0, 0, 1, 64);
+    int64_t maxUploadBytes = 0, refinedFrames = 0, frames = 0;
+    for (int f = 0; f < 60; ++f) {
+      if (f % 6 == 0) {  // a new view, TF, mode or LOD now and then
+        camera = orbit(store, 360 * unit(random), 160 * unit(random) - 80, 0.7 + 3.5 * unit(random), 64);
+        const double r = unit(random);
+        view.mode = r < 0.25 ? RaycastMode::Iso : RaycastMode::Dvr;
+        view.iso = -200 + 1400 * unit(random);
+        view.tf = &tfs[static_cast<std::size_t>(f / 6) % tfs.size()];
+        options.mode = view.mode;
+        options.isoValue = view.iso;
+        options.lodPixels = std::array{0.0, 0.5, 1.0, 2.0}[static_cast<std::size_t>(f / 6) % 4];
+      } else {  // small drags between
+        camera = turnAboutCentre(camera, domainOf(store).centrePatient(), 3.0);
+      }
+      const std::string where = "visibility " + std::string(visibilityName(visibility)) + ", frame " + std::to_string(f);
+      const Frame frame = renderer.renderFrame(camera, *view.tf, options);
+      ++frames;
+      ASSERT_TRUE(frame.stats.errors.empty()) << where;
+      expectValidCover(renderer, store, view, where);
+      expectNoHoleOnRays(renderer, store, camera, view, where);
+      // Budgets: the CPU cache's, the pool's slots, the frame's uploads (the first split of a
+      // frame may exceed a budget below one node's eight children).
+      EXPECT_LE(renderer.cache().stats().bytes, config.cacheBytes) << where;
+      EXPECT_LE(renderer.pool().stats().slotsUsed, renderer.pool().stats().slots) << where;
+      maxUploadBytes = std::max<int64_t>(maxUploadBytes, static_cast<int64_t>(frame.stats.workingSet.uploadBytes));
+      EXPECT_LE(frame.stats.workingSet.uploadBytes, std::max<uint64_t>(config.uploadBytesPerFrame, 8 * slotBytes)) << where;
+      refinedFrames += frame.stats.workingSet.split > 0 ? 1 : 0;
+      if (HasFatalFailure()) return;
+    }
+    EXPECT_GT(refinedFrames, 10) << "the walk must actually refine";
+    EXPECT_GT(maxUploadBytes, 0);
+    EXPECT_TRUE(context_->takeErrors().empty());
+  }
+}
+
+TEST_F(WorkingSetTest, PictureConvergesToTheStaticOneWhenTheCameraStops) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.lodPixels = 0.5;
+  OrbitParameters start;
+  start.width = start.height = 96;
+  const std::vector<Camera> path = cameraPath("orbit:12,degrees:120,zoom-from:1,zoom-to:2.5", domainOf(store), start);
+  Frame still;
+  {
+    RendererConfig reference;  // feedback off, no budget: the static picture
+    GpuRenderer renderer(store, reference);
+    still = renderer.render(path.back(), tf, options);
+  }
+  ASSERT_GT(coverage(still.image), 0.1);
+  for (const Visibility visibility : {Visibility::None, Visibility::Rays}) {
+    RendererConfig config;
+    config.uploadBytesPerFrame = 6 * 20 * 20 * 20 * 2;
+    config.visibility = visibility;
+    config.visibilityThreshold = 1;
+    GpuRenderer renderer(store, config);
+    for (const Camera& c : path) renderer.renderFrame(c, tf, options);
+    Frame last;
+    int frames = 0;
+    do {
+      last = renderer.renderFrame(path.back(), tf, options);
+      if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    } while (!renderer.workingSet().settled() && ++frames < 200);
+    ASSERT_TRUE(renderer.workingSet().settled()) << visibilityName(visibility);
+    const ImageMetrics m = compare(still.image, last.image);
+    if (visibility == Visibility::None) {
+      // The same cut; only the bricks' places in the pool differ, which moves texture
+      // coordinates by float rounding: the same 8-bit picture.
+      EXPECT_LE(m.maxAbsError, 1.0 / 255) << "the same cut must give the same picture";
+      EXPECT_EQ(last.stats.workingSetBricks, still.stats.workingSetBricks);
+    }
+    EXPECT_GE(m.psnrDb, 40.0) << visibilityName(visibility);
+  }
+}
+
+TEST_F(WorkingSetTest, RayFeedbackShrinksTheSetButNotThePicture) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  // Opaque bone: the rays stop in the near wall of the skull.
+  transfer::TransferFunction tf = transfer::findPreset("bone");
+  tf.opacity = {{150, 0.0f}, {300, 1.0f}};
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Camera camera = orbit(store, 30, 10, 2.5, 128);
+  RendererConfig none;
+  GpuRenderer withoutFeedback(store, none);
+  const Frame a = withoutFeedback.render(camera, tf, options);
+  RendererConfig rays;
+  rays.visibility = Visibility::Rays;
+  GpuRenderer withFeedback(store, rays);
+  const Frame b = withFeedback.render(camera, tf, options);
+  ASSERT_GT(coverage(a.image), 0.3) << "zoomed into the skull: most of the picture is bone";
+  // What rays sample of the set without feedback (the counting variant, same cut).
+  RaycastOptions counting = options;
+  counting.stats = true;
+  const int64_t sampled = withoutFeedback.render(camera, tf, counting).stats.bricksTouched;
+  ASSERT_GT(sampled, 0);
+  ASSERT_LT(sampled, a.stats.workingSetBricks * 3 / 4) << "the view must hide something";
+  // The acceptance's relative bar: no more than the sampled bricks plus 20 % of the rest.
+  EXPECT_LE(b.stats.workingSetBricks, sampled + (a.stats.workingSetBricks - sampled) / 5)
+      << "without feedback " << a.stats.workingSetBricks << ", sampled " << sampled;
+  const ImageMetrics m = compare(a.image, b.image);
+  EXPECT_GE(m.psnrDb, 40.0);
+  EXPECT_GT(b.stats.workingSet.hiddenLeaves, 0);
+}
+
+TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction bone = transfer::findPreset("bone");
+  const transfer::TransferFunction soft = transfer::findPreset("soft-tissue");
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Camera camera = orbit(store, 120, 25, 1, 96);
+  GpuRenderer renderer(store);
+  const Frame first = renderer.render(camera, bone, options);
+  const Frame other = renderer.render(camera, soft, options);
+  EXPECT_NE(first.stats.workingSetBricks, other.stats.workingSetBricks) << "the TFs differ in emptiness";
+  const uint64_t loadedBefore = renderer.loader().stats().loaded;
+  const Frame again = renderer.render(camera, bone, options);
+  EXPECT_EQ(renderer.loader().stats().loaded, loadedBefore) << "every brick was cached";
+  EXPECT_EQ(compare(first.image, again.image).maxAbsError, 0.0);
+  EXPECT_EQ(first.stats.workingSetBricks, again.stats.workingSetBricks);
+}
+
+TEST_F(WorkingSetTest, BrickCorruptedMidSessionGivesOneErrorAndItsAncestor) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::filesystem::path dir = test::freshTempDir("gl_working_set_corrupt");
+  const std::filesystem::path copy = dir / "phantom.octoray";
+  std::filesystem::copy_file(phantomStore(), copy);
+  const volume::StoreReader store(copy.string());
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  const Camera camera = orbit(store, 60, 20, 1.5, 64);
+  RaycastOptions coarse, fine;
+  coarse.lodPixels = 1e6;  // the root only
+  fine.lodPixels = 0;
+  // A leaf brick the fine view needs (from a separate renderer over the intact file).
+  int64_t victim = -1;
+  {
+    GpuRenderer probe(store);
+    probe.render(camera, tf, fine);
+    for (int64_t id : probe.workingSet().cutNodes()) {
+      if (store.layout().nodeKey(id).level == store.layout().leafLevel() && store.node(id).payloadBytes > 0) {
+        victim = id;
+        break;
+      }
+    }
+  }
+  ASSERT_GE(victim, 0);
+  GpuRenderer renderer(store);
+  renderer.render(camera, tf, coarse);
+  ASSERT_EQ(renderer.workingSet().cutNodes().size(), 1u);
+  const volume::NodeRecord& n = store.node(victim);
+  test::flipByte(copy, static_cast<std::streamoff>(n.payloadOffset + n.payloadBytes / 2));
+  std::vector<std::string> errors;
+  for (int f = 0; f < 60; ++f) {
+    const Frame frame = renderer.renderFrame(camera, tf, fine);
+    errors.insert(errors.end(), frame.stats.errors.begin(), frame.stats.errors.end());
+    const std::vector<int64_t>& cut = renderer.workingSet().cutNodes();
+    ASSERT_EQ(std::count(cut.begin(), cut.end(), victim), 0) << "the corrupted brick was drawn";
+    if (renderer.workingSet().settled()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_EQ(errors.size(), 1u) << "one message for the one corrupted brick";
+  EXPECT_NE(errors[0].find(copy.string()), std::string::npos) << errors[0];
+  const std::vector<int64_t>& cut = renderer.workingSet().cutNodes();
+  EXPECT_EQ(std::count(cut.begin(), cut.end(), store.layout().parent(victim)), 1)
+      << "its parent stands in for it";
+  EXPECT_GT(cut.size(), 8u) << "the rest of the view still refined";
+}
+
+TEST_F(WorkingSetTest, ShutsDownCleanlyWhileBricksAreLoading) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction tf = transfer::findPreset("soft-tissue");
+  RaycastOptions options;
+  options.lodPixels = 0;
+  for (int round = 0; round < 5; ++round) {
+    RendererConfig config;
+    config.loaderThreads = 2;
+    config.uploadBytesPerFrame = 1;
+    GpuRenderer renderer(store, config);
+    for (int f = 0; f < 1 + round; ++f) renderer.renderFrame(orbit(store, 40.0 * f, 0, 1, 32), tf, options);
+    // Destroyed with requests queued and loads in flight.
+  }
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
+TEST_F(WorkingSetTest, PoolUsesItsWholeBudgetNotWholeLayers) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  // The 8 GiB phantom's case: 5773 slots of 36^3 wanted, at most 56 per axis (2048 texels).
+  const std::array<int64_t, 3> grid = slotGridFor(5773, 56);
+  EXPECT_LE(grid[0] * grid[1] * grid[2], 5773);
+  EXPECT_GE(grid[0] * grid[1] * grid[2], 5773 * 95 / 100);
+  for (int64_t a : grid) EXPECT_LE(a, 56);
+  const volume::StoreReader store(phantomStore().string());
+  const std::size_t slotBytes = 20 * 20 * 20 * 2;
+  for (const std::size_t budget : {std::size_t{1} << 20, std::size_t{3} << 20, 5 * slotBytes + 7}) {
+    BrickPool pool(store, budget, false);
+    const BrickPoolStats s = pool.stats();
+    EXPECT_LE(s.bytes, budget);
+    EXPECT_GE(static_cast<double>(s.bytes), 0.95 * static_cast<double>(budget) - static_cast<double>(slotBytes))
+        << "budget " << budget;
+  }
+  EXPECT_THROW(BrickPool(store, slotBytes - 1, false), Error);
+}
+
+}  // namespace
+}  // namespace octoray::gpu
