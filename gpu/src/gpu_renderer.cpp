@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 
 #include "octoray/core/error.h"
 
@@ -38,6 +39,7 @@ struct GpuRenderer::Impl {
   volume::BrickLoader loader;
   WorkingSet workingSet;
   Raycaster raycaster;
+  std::optional<OcclusionQueries> occlusion;  // made on first use
   SpatialIndex index;
   int64_t frames = 0;
 
@@ -76,27 +78,58 @@ Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFun
   im.index = SpatialIndex::build(im.store.layout(), cut);
   const double indexMs = millisecondsSince(indexStart);
 
-  const bool feedback = im.config.visibility != Visibility::None;
+  const Visibility visibility = im.config.visibility;
+  const bool rays = visibility == Visibility::Rays || visibility == Visibility::Both;
+  const bool occlusion = visibility == Visibility::Occlusion || visibility == Visibility::Both;
   LeafFeedbackCounts counts;
-  Frame frame = im.raycaster.draw(camera, tf, options, im.index, feedback ? &counts : nullptr);
-  FrameStats& stats = frame.stats;
-  if (feedback) {
+  // Occlusion queries: the cut's leaf boxes, tiles planned from their projections.
+  double queryMs = 0;
+  std::optional<TiledPass> tiled;
+  if (occlusion) {
     const auto start = std::chrono::steady_clock::now();
-    std::vector<WorkingSet::LeafFeedback> leaves;
-    leaves.reserve(static_cast<std::size_t>(im.index.dataLeaves));
+    if (!im.occlusion) im.occlusion.emplace();
+    std::vector<std::array<Vec3, 8>> boxes;
+    boxes.reserve(cut.size());
+    const Mat4 patientFromIndex = im.store.patientFromIndex();
+    for (const CutLeaf& leaf : cut) boxes.push_back(nodeBoxCorners(im.store.layout(), patientFromIndex, leaf.key));
+    tiled.emplace();
+    tiled->tiles = im.occlusion->plan(camera, im.raycaster.depthRange(camera), boxes);
+    tiled->afterTile = [&im](std::size_t tile) { im.occlusion->issue(tile); };
+    queryMs += millisecondsSince(start);
+  }
+  Frame frame = im.raycaster.draw(camera, tf, options, im.index, rays ? &counts : nullptr,
+                                  tiled ? &*tiled : nullptr);
+  FrameStats& stats = frame.stats;
+  if (visibility != Visibility::None) {
+    const auto start = std::chrono::steady_clock::now();
     const auto threshold = static_cast<uint32_t>(im.config.visibilityThreshold);
     const std::vector<int64_t>& cutNodes = im.workingSet.cutNodes();
-    for (std::size_t r = 0; r < counts.rays.size(); ++r) {
-      const int32_t c = im.index.cutIndex[r];
-      if (c < 0) continue;
-      WorkingSet::LeafFeedback f;
-      f.node = cutNodes[static_cast<std::size_t>(c)];
-      f.seen = counts.rays[r] >= threshold;
-      f.wantsFiner = counts.finer[r] >= threshold;
-      leaves.push_back(f);
+    std::vector<WorkingSet::LeafFeedback> leaves(cutNodes.size());
+    for (std::size_t c = 0; c < cutNodes.size(); ++c) {
+      leaves[c].node = cutNodes[c];
+      leaves[c].seen = true;
+      leaves[c].wantsFiner = true;
+    }
+    if (rays) {
+      std::vector<bool> reached(cutNodes.size(), false);
+      for (std::size_t r = 0; r < counts.rays.size(); ++r) {
+        const int32_t c = im.index.cutIndex[r];
+        if (c < 0) continue;
+        reached[static_cast<std::size_t>(c)] = counts.rays[r] >= threshold;
+        leaves[static_cast<std::size_t>(c)].wantsFiner = counts.finer[r] >= threshold;
+      }
+      for (std::size_t c = 0; c < cutNodes.size(); ++c) leaves[c].seen = reached[c];
+    }
+    if (occlusion) {
+      const std::vector<uint32_t> samples = im.occlusion->results();
+      for (std::size_t c = 0; c < cutNodes.size(); ++c) {
+        leaves[c].seen = leaves[c].seen && samples[c] >= threshold;
+      }
+      stats.queriesIssued = static_cast<int64_t>(cutNodes.size());
+      stats.queryTiles = static_cast<int64_t>(tiled->tiles.size());
     }
     im.workingSet.applyFeedback(leaves);
-    stats.feedbackMs = millisecondsSince(start);
+    stats.feedbackMs = millisecondsSince(start) + queryMs;
     stats.feedbackDelayFrames = 1;  // read back after the draw, used by the next update
   }
 

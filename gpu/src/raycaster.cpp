@@ -254,6 +254,27 @@ Raycaster::Raycaster(const volume::StoreReader& store, const BrickPool& pool)
 
 Raycaster::~Raycaster() = default;
 
+DepthRange Raycaster::depthRange(const Camera& camera) const {
+  // The domain's extent along the view axis, widened by 1 mm, the near plane kept in front.
+  const Mat4 patientFromIndex = impl_->store.patientFromIndex();
+  const volume::Index3& dims = impl_->layout.levelDims(impl_->layout.leafLevel());
+  const Vec3 forward = normalize(camera.target - camera.eye);
+  double zNear = std::numeric_limits<double>::infinity(), zFar = 0;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 p = patientFromIndex.transformPoint({(c & 1) ? dims[0] - 0.5 : -0.5,
+                                                    (c & 2) ? dims[1] - 0.5 : -0.5,
+                                                    (c & 4) ? dims[2] - 0.5 : -0.5});
+    const double z = dot(p - camera.eye, forward);
+    zNear = std::min(zNear, z);
+    zFar = std::max(zFar, z);
+  }
+  DepthRange range;
+  range.farMm = std::max(zFar, 1e-3) + 1.0;
+  range.nearMm = std::clamp(zNear - 1.0, 1e-3 * range.farMm, range.farMm * 0.5);
+  range.perspective = camera.projection == Projection::Perspective;
+  return range;
+}
+
 unsigned Raycaster::variantProgram(const transfer::TransferFunction& tf,
                                      const RaycastOptions& options, Projection projection) {
   return impl_->program(impl_->defines(tf, options, projection, false)).id();
@@ -337,7 +358,7 @@ void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
 
 Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf,
                       const RaycastOptions& options, const SpatialIndex& index,
-                      LeafFeedbackCounts* feedback) {
+                      LeafFeedbackCounts* feedback, const TiledPass* tiles) {
   Impl& im = *impl_;
   validateRaycast(camera, tf, options);
   Frame frame;
@@ -392,26 +413,14 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
     for (int c = 0; c < 3; ++c) normalFromIndex[r][c] = indexFromPatient.m[c][r];
   }
   setMat3(prog.uniform("uNormalFromIndex"), normalFromIndex);
-  const volume::Index3& dims = im.layout.levelDims(im.layout.leafLevel());
-  const Vec3 forward = normalize(camera.target - camera.eye);
   glUniform1i(prog.uniform("uLeafLevel"), im.layout.leafLevel());
   glUniform1i(prog.uniform("uMaxIterations"), static_cast<GLint>(3 * (leafRecords + 2)));
   glUniform1f(prog.uniform("uStepMm"), static_cast<float>(im.stepMm(options)));
   glUniform1f(prog.uniform("uInvUnitDistance"), static_cast<float>(1.0 / tf.unitDistanceMm));
   glUniform1f(prog.uniform("uEarlyTermination"), static_cast<float>(options.earlyTermination));
 
-  // Depth mapping for gl_FragDepth: the domain's extent along the view axis.
-  double zNear = std::numeric_limits<double>::infinity(), zFar = 0;
-  for (int c = 0; c < 8; ++c) {
-    const Vec3 p = patientFromIndex.transformPoint({(c & 1) ? dims[0] - 0.5 : -0.5,
-                                                    (c & 2) ? dims[1] - 0.5 : -0.5,
-                                                    (c & 4) ? dims[2] - 0.5 : -0.5});
-    const double z = dot(p - camera.eye, forward);
-    zNear = std::min(zNear, z);
-    zFar = std::max(zFar, z);
-  }
-  zFar = std::max(zFar, 1e-3) + 1.0;
-  zNear = std::clamp(zNear - 1.0, 1e-3 * zFar, zFar * 0.5);
+  const DepthRange depth = depthRange(camera);
+  const double zNear = depth.nearMm, zFar = depth.farMm;
   glUniform1f(prog.uniform("uNear"), static_cast<float>(zNear));
   glUniform1f(prog.uniform("uFar"), static_cast<float>(zFar));
 
@@ -486,7 +495,27 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
 
   glFinish();
   const auto drawStart = std::chrono::steady_clock::now();
-  glDrawArrays(GL_TRIANGLES, 0, 3);
+  if (tiles == nullptr || tiles->tiles.empty()) {
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+  } else {
+    // Tile by tile, each followed by the caller's work on it (the occlusion queries).
+    glEnable(GL_SCISSOR_TEST);
+    for (std::size_t i = 0; i < tiles->tiles.size(); ++i) {
+      const ScreenTile& t = tiles->tiles[i];
+      glEnable(GL_SCISSOR_TEST);
+      glScissor(t.x, t.y, t.width, t.height);
+      glDrawArrays(GL_TRIANGLES, 0, 3);
+      if (tiles->afterTile) {
+        tiles->afterTile(i);
+        glUseProgram(prog.id());
+        glBindVertexArray(im.vao.id());
+        glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+        glDepthMask(GL_TRUE);
+        glDepthFunc(GL_ALWAYS);
+      }
+    }
+    glDisable(GL_SCISSOR_TEST);
+  }
   glFinish();
   stats.drawMs = millisecondsSince(drawStart);
   throwOnGlError("raycasting");

@@ -7,7 +7,7 @@
 //     --preset NAME | --tf FILE [--tf-name NAME]  [--iso HU]  --size WxH
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
-//      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|none]
+//      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
 //      [--boundary KC,KS,KE] [--silhouette KC,KS,KE]] | --reference
 // --path renders a camera path one frame each, with the working set carried across frames
@@ -254,6 +254,10 @@ nlohmann::json frameRecord(const gpu::Frame& frame, double ms) {
           {"loaderQueued", s.loaderQueued},
           {"loaderLoading", s.loaderLoading},
           {"feedbackDelayFrames", s.feedbackDelayFrames},
+          {"queriesIssued", s.queriesIssued},
+          {"queryTiles", s.queryTiles},
+          {"proxyLeaves", w.proxyLeaves},
+          {"cutLeaves", w.leaves},
           {"rssMib", rss},
           {"peakRssMib", peak},
           {"errors", s.errors}};
@@ -620,8 +624,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--visibility", a.visibility,
                  "GPU: feedback that prunes the working set: rays (which leaves rays reach and "
-                 "want finer, read back each frame) or none")
-      ->check(CLI::IsMember({"rays", "none"}))
+                 "want finer), occlusion (queries on the leaves' boxes against the depth of "
+                 "the rays' last samples, screen-space tiling), both, or none")
+      ->check(CLI::IsMember({"rays", "occlusion", "both", "none"}))
       ->capture_default_str();
   app.add_option("--visibility-threshold", a.visibilityThreshold,
                  "GPU: rays (pixels) a leaf needs to count as seen")

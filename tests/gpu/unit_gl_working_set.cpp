@@ -28,6 +28,7 @@
 #include "octoray/gpu/camera_path.h"
 #include "octoray/gpu/gpu_renderer.h"
 #include "octoray/gpu/image_metrics.h"
+#include "octoray/gpu/occlusion.h"
 #include "octoray/gpu/spatial_index.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/volume/phantom.h"
@@ -205,12 +206,64 @@ double coverage(const Image& image) {
 
 class WorkingSetTest : public GlTest {};
 
+// Occlusion queries by hand: an opaque slab fills the window's left half at depth 0.25 (the
+// raycaster's role, played here by a clear and a scissored depth clear); a box in front of it
+// passes on its whole projected area, the same box behind it only where the slab is not.
+TEST_F(WorkingSetTest, OcclusionQueriesCountThePixelsInFrontOfTheRaysLastSamples) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  Camera camera;
+  camera.projection = Projection::Orthographic;
+  camera.eye = {0, -100, 0};
+  camera.target = {0, 0, 0};
+  camera.up = {0, 0, 1};
+  camera.orthoHeightMm = 64;
+  camera.width = camera.height = 64;  // 1 mm per pixel
+  const DepthRange depth{50, 150, false};  // window depth = (y + 50) / 100
+  const auto box = [](double x0, double x1, double y0, double y1) {
+    std::array<Vec3, 8> c;
+    for (int i = 0; i < 8; ++i) c[static_cast<std::size_t>(i)] = {(i & 1) ? x1 : x0, (i & 2) ? y1 : y0, (i & 4) ? 8.0 : -8.0};
+    return c;
+  };
+  // x in [-16, 16] (32 px) by z in [-8, 8] (16 px): 512 pixels; half of it behind the slab.
+  const std::vector<std::array<Vec3, 8>> boxes = {box(-16, 16, -40, -30), box(-16, 16, -10, 0)};
+  GlTexture colour(GL_TEXTURE_2D), depthTexture(GL_TEXTURE_2D);
+  glTextureStorage2D(colour.id(), 1, GL_RGBA8, 64, 64);
+  glTextureStorage2D(depthTexture.id(), 1, GL_DEPTH_COMPONENT32F, 64, 64);
+  GlFramebuffer fbo;
+  glNamedFramebufferTexture(fbo.id(), GL_COLOR_ATTACHMENT0, colour.id(), 0);
+  glNamedFramebufferTexture(fbo.id(), GL_DEPTH_ATTACHMENT, depthTexture.id(), 0);
+  glBindFramebuffer(GL_FRAMEBUFFER, fbo.id());
+  glViewport(0, 0, 64, 64);
+  glEnable(GL_DEPTH_TEST);
+  glDepthMask(GL_TRUE);
+  glClearDepth(1.0);
+  glClear(GL_DEPTH_BUFFER_BIT);
+  glEnable(GL_SCISSOR_TEST);
+  glScissor(0, 0, 32, 64);  // the slab: rays stopped at y = -25 mm on the left half
+  glClearDepth(0.25);
+  glClear(GL_DEPTH_BUFFER_BIT);
+  glDisable(GL_SCISSOR_TEST);
+  OcclusionQueries queries;
+  const std::vector<ScreenTile>& tiles = queries.plan(camera, depth, boxes, 1);
+  ASSERT_GE(tiles.size(), 1u);
+  int64_t area = 0;
+  for (const ScreenTile& t : tiles) area += int64_t{t.width} * t.height;
+  EXPECT_EQ(area, 64 * 64) << "the tiles partition the window";
+  for (std::size_t t = 0; t < tiles.size(); ++t) queries.issue(t);
+  const std::vector<uint32_t> samples = queries.results();
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  ASSERT_EQ(samples.size(), 2u);
+  EXPECT_EQ(samples[0], 512u) << "in front of the slab: every pixel of its front face";
+  EXPECT_EQ(samples[1], 256u) << "behind the slab: only the right half";
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
 TEST_F(WorkingSetTest, CutIsAlwaysAValidCoverWithoutHolesOnRandomPaths) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const volume::StoreReader store(phantomStore().string());
   const std::vector<transfer::TransferFunction> tfs = {
       transfer::findPreset("bone"), transfer::findPreset("soft-tissue"), transfer::findPreset("skin")};
-  for (const Visibility visibility : {Visibility::None, Visibility::Rays}) {
+  for (const Visibility visibility : {Visibility::None, Visibility::Rays, Visibility::Occlusion}) {
     RendererConfig config;
     const std::size_t slotBytes = std::size_t{20 * 20 * 20 * 2};
     config.poolBytes = 60 * slotBytes;       // 60 slots of 441 nodes: refinement hits the pool
@@ -219,7 +272,7 @@ TEST_F(WorkingSetTest, CutIsAlwaysAValidCoverWithoutHolesOnRandomPaths) {
     config.visibility = visibility;
     config.visibilityThreshold = 1;
     GpuRenderer renderer(store, config);
-    std::mt19937 random(visibility == Visibility::None ? 5 : 6);
+    std::mt19937 random(5 + static_cast<unsigned>(visibility));
     std::uniform_real_distribution<double> unit(0, 1);
     View view{RaycastMode::Dvr, 0, &tfs[0]};
     RaycastOptions options;
@@ -300,7 +353,7 @@ TEST_F(WorkingSetTest, PictureConvergesToTheStaticOneWhenTheCameraStops) {
   }
 }
 
-TEST_F(WorkingSetTest, RayFeedbackShrinksTheSetButNotThePicture) {
+TEST_F(WorkingSetTest, VisibilityFeedbackShrinksTheSetButNotThePicture) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const volume::StoreReader store(phantomStore().string());
   // Opaque bone: the rays stop in the near wall of the skull.
@@ -312,10 +365,6 @@ TEST_F(WorkingSetTest, RayFeedbackShrinksTheSetButNotThePicture) {
   RendererConfig none;
   GpuRenderer withoutFeedback(store, none);
   const Frame a = withoutFeedback.render(camera, tf, options);
-  RendererConfig rays;
-  rays.visibility = Visibility::Rays;
-  GpuRenderer withFeedback(store, rays);
-  const Frame b = withFeedback.render(camera, tf, options);
   ASSERT_GT(coverage(a.image), 0.3) << "zoomed into the skull: most of the picture is bone";
   // What rays sample of the set without feedback (the counting variant, same cut).
   RaycastOptions counting = options;
@@ -323,12 +372,23 @@ TEST_F(WorkingSetTest, RayFeedbackShrinksTheSetButNotThePicture) {
   const int64_t sampled = withoutFeedback.render(camera, tf, counting).stats.bricksTouched;
   ASSERT_GT(sampled, 0);
   ASSERT_LT(sampled, a.stats.workingSetBricks * 3 / 4) << "the view must hide something";
-  // The acceptance's relative bar: no more than the sampled bricks plus 20 % of the rest.
-  EXPECT_LE(b.stats.workingSetBricks, sampled + (a.stats.workingSetBricks - sampled) / 5)
-      << "without feedback " << a.stats.workingSetBricks << ", sampled " << sampled;
-  const ImageMetrics m = compare(a.image, b.image);
-  EXPECT_GE(m.psnrDb, 40.0);
-  EXPECT_GT(b.stats.workingSet.hiddenLeaves, 0);
+  for (const Visibility visibility : {Visibility::Rays, Visibility::Occlusion, Visibility::Both}) {
+    RendererConfig config;
+    config.visibility = visibility;
+    GpuRenderer withFeedback(store, config);
+    const Frame b = withFeedback.render(camera, tf, options);
+    // The acceptance's relative bar: no more than the sampled bricks plus 20 % of the rest.
+    EXPECT_LE(b.stats.workingSetBricks, sampled + (a.stats.workingSetBricks - sampled) / 5)
+        << visibilityName(visibility) << ": without feedback " << a.stats.workingSetBricks
+        << ", sampled " << sampled;
+    const ImageMetrics m = compare(a.image, b.image);
+    EXPECT_GE(m.psnrDb, 40.0) << visibilityName(visibility);
+    EXPECT_GT(b.stats.workingSet.hiddenLeaves, 0) << visibilityName(visibility);
+    if (visibility != Visibility::Rays) {
+      EXPECT_GT(b.stats.queriesIssued, 0);
+    }
+    EXPECT_TRUE(context_->takeErrors().empty());
+  }
 }
 
 TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {

@@ -23,6 +23,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -30,6 +31,7 @@
 #include "octoray/gpu/brick_pool.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/image.h"
+#include "octoray/gpu/occlusion.h"
 #include "octoray/gpu/spatial_index.h"
 #include "octoray/gpu/working_set.h"
 #include "octoray/transfer/transfer_function.h"
@@ -81,7 +83,8 @@ struct FrameStats {
   int64_t pixelsCovered = 0;        // pixels whose ray meets the domain
   // The working set's frame (GpuRenderer fills these).
   WorkingSetStats workingSet;
-  double feedbackMs = 0;            // reading the feedback back and applying it
+  double feedbackMs = 0;            // planning queries, reading the feedback back, applying it
+  int64_t queriesIssued = 0, queryTiles = 0;  // occlusion feedback
   int64_t feedbackDelayFrames = 0;  // frames between a view and the feedback the cut used
   int64_t frameIndex = 0;
   // The CPU cache and the loader after the frame.
@@ -106,6 +109,12 @@ struct LeafFeedbackCounts {
   std::vector<uint32_t> finer;  // rays that wanted finer data in it
 };
 
+// Drawing the pass tile by tile (scissored), with work after each tile (occlusion.h).
+struct TiledPass {
+  std::vector<ScreenTile> tiles;  // a partition of the window
+  std::function<void(std::size_t tile)> afterTile;
+};
+
 // Throws octoray::Error for a bad camera, TF or option.
 void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
                      const RaycastOptions& options);
@@ -121,7 +130,9 @@ class Raycaster {
   // options and GL errors. FrameStats' working-set fields are left to the caller.
   Frame draw(const Camera& camera, const transfer::TransferFunction& tf,
              const RaycastOptions& options, const SpatialIndex& index,
-             LeafFeedbackCounts* feedback = nullptr);
+             LeafFeedbackCounts* feedback = nullptr, const TiledPass* tiles = nullptr);
+  // The depth mapping of the last-sample depth buffer for `camera`.
+  DepthRange depthRange(const Camera& camera) const;
 
   std::vector<std::string> variantDefines(const transfer::TransferFunction& tf,
                                           const RaycastOptions& options,
