@@ -356,6 +356,7 @@ int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::Tran
       c.height = size[1];
     }
   }
+  if (!a.saveCamera.empty()) gpu::saveCamera(cameras.back(), a.saveCamera);
   // The camera stops at the first frame from which every camera is the same.
   std::size_t stop = cameras.size() - 1;
   while (stop > 0 && gpu::cameraToJson(cameras[stop - 1]) == gpu::cameraToJson(cameras.back())) --stop;

@@ -168,5 +168,72 @@ TEST_F(GpuRenderTool, CorruptedBrickFailsTheRenderNamingTheStore) {
   EXPECT_FALSE(std::filesystem::exists(out));
 }
 
+
+// --path: one frame per camera with the working set carried across frames, per-frame figures
+// to CSV and JSON, the camera stopping and the picture converging, a camera-list file, and
+// bad paths refused with a message.
+TEST_F(GpuRenderTool, CameraPathStreamsAndReportsEveryFrame) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const std::string csv = (dir / "path.csv").string(), last = (dir / "last.json").string();
+  const ProcessResult r = runProcess({render, store, "-o", (dir / "path.png").string(), "--preset",
+                                      "bone", "--size", "64x64", "--lod-pixels", "0", "--path",
+                                      "orbit:6,degrees:60,zoom-from:1,zoom-to:2,still:12", "--stats",
+                                      csv, "--upload-mib-per-frame", "1", "--save-camera", last, "--json"});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  const auto report = nlohmann::json::parse(r.out);
+  EXPECT_EQ(report["framesRendered"], 18);
+  EXPECT_EQ(report["cameraStopsAtFrame"], 5);
+  EXPECT_EQ(report["visibility"], "rays");
+  ASSERT_FALSE(report["convergedAfterStopMs"].is_null()) << "12 still frames converge this small store";
+  EXPECT_GT(report["bytesRead"].get<int64_t>(), 0);
+  EXPECT_GT(report["p95Ms"].get<double>(), 0);
+  EXPECT_GE(report["p95Ms"].get<double>(), report["medianMs"].get<double>());
+  EXPECT_GT(report["peakRssMib"].get<double>(), 0);
+  ASSERT_EQ(report["frames"].size(), 18u);
+  int64_t loaded = 0;
+  for (const auto& f : report["frames"]) {
+    loaded += f["bricksLoaded"].get<int64_t>();
+    EXPECT_LE(f["cacheBytes"].get<int64_t>(), f["cacheBudgetBytes"].get<int64_t>());
+    EXPECT_LE(f["poolSlotsUsed"].get<int64_t>(), f["poolSlots"].get<int64_t>());
+    EXPECT_EQ(f["feedbackDelayFrames"], 1);
+  }
+  EXPECT_GT(loaded, 0) << "bricks arrive through the loader";
+  // The CSV: a header and one row per frame, the same figures.
+  std::ifstream in(csv);
+  std::string header, line;
+  ASSERT_TRUE(std::getline(in, header));
+  EXPECT_NE(header.find("selectMs"), std::string::npos);
+  EXPECT_NE(header.find("bytesRead"), std::string::npos);
+  int rows = 0;
+  while (std::getline(in, line)) ++rows;
+  EXPECT_EQ(rows, 18);
+  // The converged last frame equals a still render of the saved camera.
+  const ProcessResult still = runProcess({render, store, "-o", (dir / "still.png").string(), "--preset",
+                                          "bone", "--lod-pixels", "0", "--camera", last,
+                                          "--visibility", "none"});
+  ASSERT_EQ(still.exitCode, 0) << still.err;
+  const ImageMetrics m = compare(readImage((dir / "still.png").string()), readImage((dir / "path.png").string()));
+  EXPECT_GE(m.psnrDb, 40.0);
+  // A camera list.
+  {
+    std::ofstream list(dir / "cameras.json");
+    list << "{\"cameras\": [" << std::ifstream(last).rdbuf() << ", " << std::ifstream(last).rdbuf() << "]}";
+  }
+  const ProcessResult fromFile = runProcess({render, store, "-o", (dir / "list.png").string(), "--preset",
+                                             "bone", "--path", (dir / "cameras.json").string(), "--json"});
+  ASSERT_EQ(fromFile.exitCode, 0) << fromFile.err;
+  EXPECT_EQ(nlohmann::json::parse(fromFile.out)["framesRendered"], 2);
+  // Bad paths: a message naming the problem, no picture.
+  for (const std::string& bad : {std::string("orbit:0"), std::string("orbit:5,spin:3"),
+                                 (dir / "missing.json").string()}) {
+    const std::string out = (dir / "bad.png").string();
+    const ProcessResult b = runProcess({render, store, "-o", out, "--preset", "bone", "--path", bad});
+    EXPECT_EQ(b.exitCode, 1) << bad;
+    EXPECT_NE(b.err.find("path"), std::string::npos) << b.err;
+    EXPECT_FALSE(std::filesystem::exists(out)) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace octoray::gpu

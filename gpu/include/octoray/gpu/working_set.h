@@ -14,31 +14,34 @@
 //
 // A node wants splitting when it is not a leaf of the store, its voxels project larger than
 // `lodPixels` at its nearest point (0: always), it meets the view frustum, and the visibility
-// feedback does not rule it out: with feedback on, only nodes the last feedback saw (some
-// rays reached them, or their occlusion query passed) are split, and with ray feedback only
-// those for which some ray wanted finer data than they hold.
+// feedback does not rule it out: with feedback on, only nodes the last feedback saw (enough
+// rays reached them, or enough pixels of their box passed the occlusion query) are split, and
+// with ray feedback only those where some ray wanted finer data than they hold. A node no
+// feedback has covered yet (new this frame) waits for the next frame's.
+//
+// Never a hole: every leaf of the cut is drawn, from its own brick when that is in the pool,
+// else from its nearest ancestor's (the spatial index's slot word carries the level offset and
+// the raycaster samples the ancestor's brick over the leaf's box). The root brick is read when
+// the working set is made and never leaves the pool, so every leaf has one.
 //
 // One frame (update()):
-//  1. Cover. From the root down, every node is either split into its non-empty children or
-//     kept as a leaf of the cut, using only bricks already in the GPU pool: a node that wants
-//     splitting is split when each non-empty child can be covered by resident bricks; a node
-//     that does not is kept when resident, and otherwise stays covered by its descendants (a
-//     merge waiting for its brick). The root is read when the working set is made and never
-//     leaves the pool, so the cover always exists: never a hole, only coarser data.
-//  2. Merge. Nodes waiting for their own brick are uploaded from the CPU cache when it has it
-//     (else requested), replacing their descendants in the cut and freeing their slots.
-//  3. Refine, largest projected voxel (times the feedback's weight) first: a leaf of the cut
-//     that wants splitting is split when its missing non-empty children are all in the CPU
-//     cache, the pool has slots not used by this frame's cut, and the frame's upload budget
-//     allows; otherwise its missing children are requested from the loader with the leaf's
-//     priority. Refinement continues below a split node in the same frame only where the
-//     feedback allows it (with feedback off; with it on, new nodes wait for the next
-//     frame's feedback).
-//  4. The frame's requests replace the loader's queue (stale ones are cancelled); the cut's
-//     bricks are pinned in the pool for the frame.
+//  1. Cover. From the root down along the previous cut: a node that wants splitting stays
+//     split if it was split last frame, or is split when each non-empty child has its brick in
+//     the pool; otherwise it is a leaf. A leaf without its brick asks for it (step 2) unless it
+//     wants its children instead (step 3); a leaf no feedback has seen for `mergeAfterFrames`
+//     frames gives its slot up and is drawn from the root; a split node none of whose leaves
+//     was seen for that long is merged back.
+//  2. Fetch: leaves waiting for their own brick get it from the CPU cache when it is there
+//     (else the loader is asked), within the upload budget and the pool's free slots.
+//  3. Refine, largest projected voxel first: a leaf that wants splitting is split when its
+//     missing non-empty children are all in the CPU cache, the pool has slots this frame does
+//     not use, and the upload budget allows (the first split of a frame always may); otherwise
+//     the missing children are requested from the loader with the leaf's priority. Below a
+//     split node refinement continues in the same frame only where no feedback is needed.
+//  4. The frame's requests replace the loader's queue (stale ones are cancelled); every brick
+//     the cut is drawn from is pinned in the pool for the frame.
 // After drawing, applyFeedback() records which leaves were seen; visibility propagates to
-// ancestors. A node none of whose leaves was seen for `mergeAfterFrames` frames is merged back
-// (invisible nodes are not refined, and their slots are the first to be reused).
+// ancestors. Unseen leaves are not refined and their slots are the first the pool reuses.
 
 #include <cstdint>
 #include <optional>
