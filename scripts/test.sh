@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Builds and runs the whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer
 # (optimised, with debug info: every test runs, and any memory error or undefined behaviour
-# fails it), then fuzzes the store reader for 60 s. Installs missing Debian packages first.
+# fails it), the loader and working-set tests under ThreadSanitizer, then fuzzes the store
+# reader for 60 s. Installs missing Debian packages first.
 # The Release build of README's first command runs the same code without instrumentation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,6 +15,20 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DOCTORAY_SA
 cmake --build build-asan -j "$jobs"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900
+echo "== ThreadSanitizer: the brick loader, the caches and the working set"
+# A separate build: the loader's threads, the cache they fill and the working set that polls,
+# requests, cancels and shuts them down mid-load, with every data race an error.
+cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DOCTORAY_TSAN=ON \
+  -DOCTORAY_BUILD_BENCHMARKS=OFF
+cmake --build build-tsan -j "$jobs" --target volume_unit_tests gpu_gl_tests
+# On one CPU (taskset): Debian's libtbb is not instrumented, so TSan cannot see its task
+# synchronisation and reports TBB's own hand-offs as races; on one CPU TBB starts no workers.
+# The loader's std::threads still interleave, and TSan's happens-before analysis does not
+# depend on timing.
+export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$PWD/scripts/tsan.supp"
+taskset -c 0 build-tsan/bin/volume_unit_tests --gtest_filter='BrickLoader*:BrickCache*'
+OCTORAY_REQUIRE_GL=1 taskset -c 0 build-tsan/bin/gpu_gl_tests --gtest_filter='WorkingSetTest.*'
+unset TSAN_OPTIONS
 echo "== libFuzzer: store reader (60 s, ASan + UBSan)"
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DOCTORAY_FUZZ=ON -DOCTORAY_BUILD_TESTS=OFF -DOCTORAY_BUILD_BENCHMARKS=OFF
