@@ -150,6 +150,8 @@ def med(values):
     return statistics.median(values) if values else None
 def fmt(v, digits=0):
     return "—" if v is None else f"{v:.{digits}f}"
+def db(v):  # octoray-compare reports identical images as an infinite PSNR (null in JSON)
+    return "identical" if v is None or v == float("inf") else f"{v:.1f}"
 lines = [f"Run {datetime.date.today()} on {platform.node()} ({os.cpu_count()} cores), "
          f"`{command}`; store `{os.path.basename(store)}`, path `{path}` at {size}, "
          f"--pool-mib {pool} --cache-mib {cache}; medians of {repeats} runs.", ""]
@@ -170,7 +172,7 @@ with open(results, "a") as jl:
                      f"{fmt(row['finalWorkingSetBricks'])} | {' / '.join(fmt(p, 1) for p in phases)} |")
     for compare in sorted(glob.glob(f"{out}/path/rays/run1/compare.json")):
         c = json.load(open(compare))
-        lines += ["", f"Converged `rays` path frame against the still render of its camera with feedback off: PSNR {c['psnrDb']:.1f} dB, SSIM {c['ssim']:.4f}."]
+        lines += ["", f"Converged `rays` path frame against the still render of its camera with feedback off: PSNR {db(c['psnrDb'])} dB, SSIM {c['ssim']:.4f}."]
         jl.write(json.dumps({"part": "convergence", **c}) + "\n")
     lines += ["", "| view | zoom | without feedback | sampled by rays | rays | occlusion | both | PSNR rays / occlusion / both dB | left of the removable: rays / occlusion / both |",
               "|---|---|---|---|---|---|---|---|---|"]
@@ -186,7 +188,7 @@ with open(results, "a") as jl:
         smaller = {v: 100 * (1 - bricks[v] / bricks["none"]) for v in ["rays", "occlusion", "both"]}
         lines.append(f"| {name} | {zoom} | {bricks['none']} | {sampled} | {bricks['rays']} (−{smaller['rays']:.0f} %) | "
                      f"{bricks['occlusion']} (−{smaller['occlusion']:.0f} %) | {bricks['both']} (−{smaller['both']:.0f} %) | "
-                     f"{' / '.join(fmt(psnr[v], 1) for v in ['rays', 'occlusion', 'both'])} | "
+                     f"{' / '.join(db(psnr[v]) for v in ['rays', 'occlusion', 'both'])} | "
                      f"{' / '.join(f'{100 * left[v]:.0f} %' for v in ['rays', 'occlusion', 'both'])} |")
 open(f"{out}/results.md", "w").write("\n".join(lines) + "\n")
 print("\n".join(lines))
