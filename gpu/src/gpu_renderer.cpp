@@ -177,6 +177,22 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
   Frame frame;
   double uploadMs = 0, selectMs = 0;
   int64_t uploaded = 0;
+  if (im.config.visibility == Visibility::None) {
+    // Without feedback nothing needs a picture to decide: update until settled, draw once.
+    WorkingSetOptions wso;
+    wso.mode = options.mode;
+    wso.lodPixels = options.lodPixels;
+    wso.isoValue = options.isoValue;
+    for (int i = 0; i < maxFrames; ++i) {
+      im.workingSet.update(camera, tf, wso);
+      for (const volume::LoadError& e : im.workingSet.takeErrors()) errors.push_back(e.message);
+      uploadMs += im.workingSet.stats().uploadMs;
+      selectMs += im.workingSet.stats().selectMs;
+      uploaded += im.workingSet.stats().uploaded;
+      if (im.workingSet.settled()) break;
+      im.loader.waitIdle();
+    }
+  }
   for (int i = 0; i < maxFrames; ++i) {
     frame = renderFrame(camera, tf, options);
     errors.insert(errors.end(), frame.stats.errors.begin(), frame.stats.errors.end());
