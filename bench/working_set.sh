@@ -9,7 +9,7 @@
 #       occlusion  --visibility occlusion
 #       both       --visibility both
 #       rays-nobudget   --visibility rays --upload-mib-per-frame 0 (unlimited)
-#     REPEATS runs each: median and p95 frame time, time to first image, time to the
+#     REPEATS runs each (OTHER_REPEATS for occlusion, both and rays-nobudget): median and p95 frame time, time to first image, time to the
 #     converged image after the camera stops, bytes read, peak RSS, final working set; the
 #     per-phase split of the frame (select, upload, raycast, feedback) from the first run.
 #  2. Convergence: the last frame of each `rays` run against a still render of the same
@@ -92,7 +92,9 @@ for config in $configs; do
   visibility=${config%-nobudget}
   budget=64
   [[ $config == *-nobudget ]] && budget=0
-  for ((r = 1; r <= repeats; ++r)); do
+  runs=$repeats
+  [[ $config == rays || $config == none ]] || runs=${OTHER_REPEATS:-$repeats}
+  for ((r = 1; r <= runs; ++r)); do
     dir=$out/path/$config/run$r
     mkdir -p "$dir"
     echo "== path $config, run $r"
@@ -154,8 +156,8 @@ def db(v):  # octoray-compare reports identical images as an infinite PSNR (null
     return "identical" if v is None or v == float("inf") else f"{v:.1f}"
 lines = [f"Run {datetime.date.today()} on {platform.node()} ({os.cpu_count()} cores), "
          f"`{command}`; store `{os.path.basename(store)}`, path `{path}` at {size}, "
-         f"--pool-mib {pool} --cache-mib {cache}; medians of {repeats} runs.", ""]
-lines += ["| config | median ms | p95 ms | first image ms | converged after stop ms | MiB read | peak RSS MiB | final bricks | select / upload / raycast / feedback ms (median frame) |",
+         f"--pool-mib {pool} --cache-mib {cache}; medians of the runs counted in each row.", ""]
+lines += ["| config (runs) | median ms | p95 ms | first image ms | converged after stop ms | MiB read | peak RSS MiB | final bricks | select / upload / raycast / feedback ms (median frame) |",
           "|---|---|---|---|---|---|---|---|---|"]
 with open(results, "a") as jl:
     for config_dir in sorted(glob.glob(f"{out}/path/*")):
@@ -167,7 +169,7 @@ with open(results, "a") as jl:
         frames = list(csv.DictReader(open(f"{config_dir}/run1/frames.csv")))
         phases = [med([float(f[k]) for f in frames]) for k in ["selectMs", "uploadMs", "drawMs", "feedbackMs"]]
         jl.write(json.dumps({"part": "path", "config": config, **row, "phases": phases}) + "\n")
-        lines.append(f"| {config} | {fmt(row['medianMs'])} | {fmt(row['p95Ms'])} | {fmt(row['firstImageMs'])} | "
+        lines.append(f"| {config} ({len(reports)}) | {fmt(row['medianMs'])} | {fmt(row['p95Ms'])} | {fmt(row['firstImageMs'])} | "
                      f"{fmt(row['convergedAfterStopMs'])} | {fmt(row['bytesRead'] / 2**20, 1)} | {fmt(row['peakRssMib'])} | "
                      f"{fmt(row['finalWorkingSetBricks'])} | {' / '.join(fmt(p, 1) for p in phases)} |")
     for compare in sorted(glob.glob(f"{out}/path/rays/run1/compare.json")):

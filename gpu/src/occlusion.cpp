@@ -24,23 +24,6 @@ struct Rect {
 
 }  // namespace
 
-std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
-                                   const volume::NodeKey& key) {
-  const int64_t cells = static_cast<int64_t>(layout.brickSize()) * layout.levelScale(key.level);
-  const volume::Index3& dims = layout.levelDims(layout.leafLevel());
-  std::array<double, 3> lo{}, hi{};
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = static_cast<double>(key.brick[a] * cells) - 0.5;
-    hi[a] = static_cast<double>(std::min((key.brick[a] + 1) * cells, dims[a])) - 0.5;
-  }
-  std::array<Vec3, 8> out;
-  for (int c = 0; c < 8; ++c) {
-    out[static_cast<std::size_t>(c)] = patientFromIndex.transformPoint(
-        {(c & 1) ? hi[0] : lo[0], (c & 2) ? hi[1] : lo[1], (c & 4) ? hi[2] : lo[2]});
-  }
-  return out;
-}
-
 OcclusionQueries::OcclusionQueries()
     : program_(GlProgram::build("occlusion_box.vert.glsl", "occlusion_box.frag.glsl", {})) {
   glVertexArrayVertexBuffer(vao_.id(), 0, vertices_.id(), 0, 3 * sizeof(float));

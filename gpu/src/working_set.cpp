@@ -101,23 +101,7 @@ class Projector {
     }
   }
 
-  // The node's 8 corners in patient space (its box clipped to the volume's domain).
-  std::array<Vec3, 8> corners(int64_t id) const {
-    const volume::NodeKey key = layout_.nodeKey(id);
-    const int64_t cells = static_cast<int64_t>(layout_.brickSize()) * layout_.levelScale(key.level);
-    const volume::Index3& dims = layout_.levelDims(layout_.leafLevel());
-    std::array<double, 3> lo{}, hi{};
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = static_cast<double>(key.brick[a] * cells) - 0.5;
-      hi[a] = static_cast<double>(std::min((key.brick[a] + 1) * cells, dims[a])) - 0.5;
-    }
-    std::array<Vec3, 8> out;
-    for (int c = 0; c < 8; ++c) {
-      out[c] = m_.transformPoint({(c & 1) ? hi[0] : lo[0], (c & 2) ? hi[1] : lo[1],
-                                  (c & 4) ? hi[2] : lo[2]});
-    }
-    return out;
-  }
+  std::array<Vec3, 8> corners(int64_t id) const { return nodeBoxCorners(layout_, m_, layout_.nodeKey(id)); }
 
   // Projected size in pixels of one voxel of the node's level, at the node's nearest point.
   double projectedPixels(int64_t id) const {
@@ -169,6 +153,23 @@ class Projector {
 };
 
 }  // namespace
+
+std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
+                                   const volume::NodeKey& key) {
+  const int64_t cells = static_cast<int64_t>(layout.brickSize()) * layout.levelScale(key.level);
+  const volume::Index3& dims = layout.levelDims(layout.leafLevel());
+  std::array<double, 3> lo{}, hi{};
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = static_cast<double>(key.brick[a] * cells) - 0.5;
+    hi[a] = static_cast<double>(std::min((key.brick[a] + 1) * cells, dims[a])) - 0.5;
+  }
+  std::array<Vec3, 8> out;
+  for (int c = 0; c < 8; ++c) {
+    out[static_cast<std::size_t>(c)] = patientFromIndex.transformPoint(
+        {(c & 1) ? hi[0] : lo[0], (c & 2) ? hi[1] : lo[1], (c & 4) ? hi[2] : lo[2]});
+  }
+  return out;
+}
 
 Visibility parseVisibility(const std::string& name) {
   if (name == "none") return Visibility::None;

@@ -123,19 +123,24 @@ RenderOptions renderOptions(const Arguments& a) {
   return o;
 }
 
+// The orbit the options describe (its image size left at the default).
+gpu::OrbitParameters orbitParameters(const Arguments& a) {
+  gpu::OrbitParameters orbit;
+  orbit.azimuthDegrees = a.azimuth;
+  orbit.elevationDegrees = a.elevation;
+  orbit.zoom = a.zoom;
+  orbit.fovYDegrees = a.fovY;
+  orbit.projection = a.projection == "orthographic" ? gpu::Projection::Orthographic
+                                                    : gpu::Projection::Perspective;
+  return orbit;
+}
+
 gpu::Camera makeCamera(const Arguments& a, const gpu::VolumeDomain& domain) {
   gpu::Camera camera;
   if (!a.camera.empty()) {
     camera = gpu::loadCamera(a.camera);
   } else {
-    gpu::OrbitParameters orbit;
-    orbit.azimuthDegrees = a.azimuth;
-    orbit.elevationDegrees = a.elevation;
-    orbit.zoom = a.zoom;
-    orbit.fovYDegrees = a.fovY;
-    orbit.projection = a.projection == "orthographic" ? gpu::Projection::Orthographic
-                                                      : gpu::Projection::Perspective;
-    camera = gpu::orbitCamera(domain, orbit);
+    camera = gpu::orbitCamera(domain, orbitParameters(a));
   }
   if (a.camera.empty() || !a.size.empty()) {
     const auto size = parseSize(a.size);
@@ -339,13 +344,7 @@ int runReference(const Arguments& a) {
 int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::TransferFunction& tf,
             gpu::RaycastOptions options, const gpu::VolumeDomain& domain,
             const gpu::GlContext& context, double setupMs) {
-  gpu::OrbitParameters start;
-  start.azimuthDegrees = a.azimuth;
-  start.elevationDegrees = a.elevation;
-  start.zoom = a.zoom;
-  start.fovYDegrees = a.fovY;
-  start.projection = a.projection == "orthographic" ? gpu::Projection::Orthographic
-                                                    : gpu::Projection::Perspective;
+  gpu::OrbitParameters start = orbitParameters(a);
   const auto size = parseSize(a.size.empty() ? "512x512" : a.size);
   start.width = size[0];
   start.height = size[1];

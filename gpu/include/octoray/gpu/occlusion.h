@@ -22,7 +22,6 @@
 #include "octoray/core/geometry.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/gl_program.h"
-#include "octoray/volume/octree_layout.h"
 
 namespace octoray::gpu {
 
@@ -36,10 +35,6 @@ struct DepthRange {
   double nearMm = 1, farMm = 2;
   bool perspective = true;
 };
-
-// The 8 corners (patient space) of node `key`'s box clipped to the volume's domain.
-std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
-                                   const volume::NodeKey& key);
 
 class OcclusionQueries {
  public:

@@ -43,6 +43,7 @@
 // After drawing, applyFeedback() records which leaves were seen; visibility propagates to
 // ancestors. Unseen leaves are not refined and their slots are the first the pool reuses.
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -67,6 +68,11 @@ enum class RaycastMode { Dvr, Iso, Mip };
 enum class Visibility { None, Occlusion, Rays, Both };
 Visibility parseVisibility(const std::string& name);  // throws octoray::Error
 const char* visibilityName(Visibility v);
+
+// The 8 corners (patient space) of node `key`'s box clipped to the volume's domain (corner
+// bits: x 1, y 2, z 4): what projection, culling and occlusion queries see of a node.
+std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
+                                   const volume::NodeKey& key);
 
 struct WorkingSetOptions {
   RaycastMode mode = RaycastMode::Dvr;
