@@ -193,7 +193,7 @@ TEST(ToolImportKill, SigtermAndSigintExit130AndWriteNothing) {
     SCOPED_TRACE(sig == SIGTERM ? "SIGTERM" : "SIGINT");
     const pid_t pid = spawn(importArgs(raw, out), log);
     ASSERT_TRUE(waitForBuildStart(pid, out)) << readFile(log);
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));  // well inside the ~0.1 s build
     ::kill(pid, sig);
     const int status = waitFor(pid);
     ASSERT_TRUE(WIFEXITED(status)) << "ended by signal " << WTERMSIG(status);
@@ -216,7 +216,9 @@ TEST(ToolImportKill, InterruptedReimportLeavesExistingStoreUntouched) {
     SCOPED_TRACE("signal " + std::to_string(sig));
     const pid_t pid = spawn(importArgs(raw, out), log);
     ASSERT_TRUE(waitForBuildStart(pid, out)) << readFile(log);
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    // Right after the build starts: a Release import of this volume takes about 0.1 s here,
+    // so a longer wait could let it finish (and replace the store) before the signal.
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
     ::kill(pid, sig);
     const int status = waitFor(pid);
     EXPECT_TRUE(WIFSIGNALED(status) || WEXITSTATUS(status) == 130) << readFile(log);
