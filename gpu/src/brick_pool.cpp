@@ -91,13 +91,40 @@ BrickPool::BrickPool(const volume::StoreReader& store, std::size_t budgetBytes, 
   int64_t want = static_cast<int64_t>(budgetBytes / slotBytes_);
   want = std::min<int64_t>(want, static_cast<int64_t>(store.nodes().size()));
   want = std::min<int64_t>(want, int64_t{kMaxSlots} - 1);  // the spatial index's slot field
-  slotGrid_ = slotGridFor(want, perAxis);
-  capacity_ = slotGrid_[0] * slotGrid_[1] * slotGrid_[2];
+  // The driver may refuse a texture the budget allows (llvmpipe caps one texture below
+  // 2 GiB): fewer slots until it accepts them, the pool's size then reported by stats().
+  const auto outOfMemory = [] {
+    bool oom = false;
+    for (int i = 0; i < 16; ++i) {
+      const GLenum e = glGetError();
+      if (e == GL_NO_ERROR) break;
+      oom = oom || e == GL_OUT_OF_MEMORY;
+    }
+    return oom;
+  };
+  outOfMemory();  // errors of earlier calls are not this allocation's
+  cellsPerBrick_ = layout.brickSize() / kCellVoxels;
+  for (;;) {
+    slotGrid_ = slotGridFor(want, perAxis);
+    capacity_ = slotGrid_[0] * slotGrid_[1] * slotGrid_[2];
+    const auto w = static_cast<GLsizei>(slotGrid_[0] * edge_), h = static_cast<GLsizei>(slotGrid_[1] * edge_),
+               d = static_cast<GLsizei>(slotGrid_[2] * edge_);
+    values_ = GlTexture(GL_TEXTURE_3D);
+    gradientTexture_ = GlTexture(GL_TEXTURE_3D);
+    cellRange_ = GlTexture(GL_TEXTURE_3D);
+    glTextureStorage3D(values_.id(), 1, floatPool_ ? GL_R32F : GL_R16, w, h, d);
+    if (gradients_) glTextureStorage3D(gradientTexture_.id(), 1, GL_RGBA8, w, h, d);
+    glTextureStorage3D(cellRange_.id(), 1, floatPool_ ? GL_RG32F : GL_RG16,
+                       static_cast<GLsizei>(slotGrid_[0] * cellsPerBrick_),
+                       static_cast<GLsizei>(slotGrid_[1] * cellsPerBrick_),
+                       static_cast<GLsizei>(slotGrid_[2] * cellsPerBrick_));
+    if (!outOfMemory()) break;
+    if (want <= 1) throw Error(store.path(), "the GL driver cannot allocate even one brick slot");
+    want = want * 7 / 8;
+  }
   slots_.assign(static_cast<std::size_t>(capacity_), {});
-
   const auto w = static_cast<GLsizei>(slotGrid_[0] * edge_), h = static_cast<GLsizei>(slotGrid_[1] * edge_),
              d = static_cast<GLsizei>(slotGrid_[2] * edge_);
-  glTextureStorage3D(values_.id(), 1, floatPool_ ? GL_R32F : GL_R16, w, h, d);
   for (GLuint tex : {values_.id(), gradientTexture_.id()}) {
     glTextureParameteri(tex, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
     glTextureParameteri(tex, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
@@ -105,12 +132,6 @@ BrickPool::BrickPool(const volume::StoreReader& store, std::size_t budgetBytes, 
     glTextureParameteri(tex, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
     glTextureParameteri(tex, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
   }
-  if (gradients_) glTextureStorage3D(gradientTexture_.id(), 1, GL_RGBA8, w, h, d);
-  cellsPerBrick_ = layout.brickSize() / kCellVoxels;
-  glTextureStorage3D(cellRange_.id(), 1, floatPool_ ? GL_RG32F : GL_RG16,
-                     static_cast<GLsizei>(slotGrid_[0] * cellsPerBrick_),
-                     static_cast<GLsizei>(slotGrid_[1] * cellsPerBrick_),
-                     static_cast<GLsizei>(slotGrid_[2] * cellsPerBrick_));
   glTextureParameteri(cellRange_.id(), GL_TEXTURE_MIN_FILTER, GL_NEAREST);
   glTextureParameteri(cellRange_.id(), GL_TEXTURE_MAG_FILTER, GL_NEAREST);
   throwOnGlError(fmt::format("allocating a {}x{}x{} brick pool", w, h, d));
