@@ -164,11 +164,6 @@ void BrickPool::markSeen(int64_t id) {
   if (it != slotOfNode_.end()) slots_[it->second].lastSeen = frame_;
 }
 
-bool BrickPool::pinned(int64_t id) const {
-  const auto it = slotOfNode_.find(id);
-  return it != slotOfNode_.end() && slots_[it->second].lastPinned == frame_;
-}
-
 int64_t BrickPool::freeSlots() const { return capacity_ - pinnedCount_; }
 
 int64_t BrickPool::takeSlot() {

@@ -22,6 +22,14 @@ WorkingSetConfig workingSetConfig(const RendererConfig& c) {
   return w;
 }
 
+WorkingSetOptions workingSetOptions(const RaycastOptions& o) {
+  WorkingSetOptions w;
+  w.mode = o.mode;
+  w.lodPixels = o.lodPixels;
+  w.isoValue = o.isoValue;
+  return w;
+}
+
 volume::BrickLoaderOptions loaderOptions(const RendererConfig& c) {
   volume::BrickLoaderOptions o;
   o.threads = std::max(1, c.loaderThreads);
@@ -69,10 +77,7 @@ Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFun
   const uint64_t cacheEvictions = im.cache.stats().evictions;
   const uint64_t poolEvictions = im.pool.stats().evictions;
 
-  WorkingSetOptions wso;
-  wso.mode = options.mode;
-  wso.lodPixels = options.lodPixels;
-  wso.isoValue = options.isoValue;
+  const WorkingSetOptions wso = workingSetOptions(options);
   const std::vector<CutLeaf>& cut = im.workingSet.update(camera, tf, wso);
   const auto indexStart = std::chrono::steady_clock::now();
   im.index = SpatialIndex::build(im.store.layout(), cut);
@@ -179,10 +184,7 @@ Frame GpuRenderer::render(const Camera& camera, const transfer::TransferFunction
   int64_t uploaded = 0;
   if (im.config.visibility == Visibility::None) {
     // Without feedback nothing needs a picture to decide: update until settled, draw once.
-    WorkingSetOptions wso;
-    wso.mode = options.mode;
-    wso.lodPixels = options.lodPixels;
-    wso.isoValue = options.isoValue;
+    const WorkingSetOptions wso = workingSetOptions(options);
     for (int i = 0; i < maxFrames; ++i) {
       im.workingSet.update(camera, tf, wso);
       for (const volume::LoadError& e : im.workingSet.takeErrors()) errors.push_back(e.message);

@@ -502,7 +502,6 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
     glEnable(GL_SCISSOR_TEST);
     for (std::size_t i = 0; i < tiles->tiles.size(); ++i) {
       const ScreenTile& t = tiles->tiles[i];
-      glEnable(GL_SCISSOR_TEST);
       glScissor(t.x, t.y, t.width, t.height);
       glDrawArrays(GL_TRIANGLES, 0, 3);
       if (tiles->afterTile) {
@@ -512,6 +511,7 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
         glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
         glDepthMask(GL_TRUE);
         glDepthFunc(GL_ALWAYS);
+        glEnable(GL_SCISSOR_TEST);  // the queries turn it off
       }
     }
     glDisable(GL_SCISSOR_TEST);

@@ -118,7 +118,6 @@ void expectValidCover(const GpuRenderer& renderer, const volume::StoreReader& st
   }
   const int leaf = layout.leafLevel();
   const volume::Index3& bricks = layout.levelBricks(leaf);
-  int64_t mustCover = 0;
   for (int64_t z = 0; z < bricks[2]; ++z) {
     for (int64_t y = 0; y < bricks[1]; ++y) {
       for (int64_t x = 0; x < bricks[0]; ++x) {
@@ -130,7 +129,6 @@ void expectValidCover(const GpuRenderer& renderer, const volume::StoreReader& st
         }
         ASSERT_LE(inCut, 1) << where << ": overlapping nodes above leaf brick " << x << "," << y << "," << z;
         if (!anyEmpty) {
-          ++mustCover;
           ASSERT_EQ(inCut, 1) << where << ": hole at leaf brick " << x << "," << y << "," << z;
         }
       }
@@ -145,7 +143,6 @@ void expectValidCover(const GpuRenderer& renderer, const volume::StoreReader& st
                     << "] drawn";
     }
   }
-  EXPECT_GT(mustCover + 1, 0);
 }
 
 // True when every leaf brick of the store inside node `key`'s box has an empty node among
@@ -175,7 +172,6 @@ bool regionEmpty(const volume::StoreReader& store, const volume::NodeKey& key, c
 void expectNoHoleOnRays(const GpuRenderer& renderer, const volume::StoreReader& store,
                         const Camera& camera, const View& view, const std::string& where) {
   const SpatialIndex& index = renderer.lastIndex();
-  int64_t crossings = 0;
   for (int y = 1; y < camera.height; y += 7) {
     for (int x = 2; x < camera.width; x += 7) {
       const OctreeRay ray = renderer.pixelRay(camera, x, y);
@@ -183,7 +179,6 @@ void expectNoHoleOnRays(const GpuRenderer& renderer, const volume::StoreReader& 
       if (!(chord.tFar > chord.tNear)) continue;
       traverseRay(index, ray, chord.tNear, chord.tFar, [&](const LeafCrossing& c) {
         if (c.kind != kEmptyLeaf || !(c.tExit > c.tEnter)) return true;
-        ++crossings;
         const double cells = std::exp2(c.level);
         const std::array<int64_t, 3> b{static_cast<int64_t>(std::floor(c.boxMin[0] * cells)),
                                        static_cast<int64_t>(std::floor(c.boxMin[1] * cells)),
@@ -195,7 +190,6 @@ void expectNoHoleOnRays(const GpuRenderer& renderer, const volume::StoreReader& 
       });
     }
   }
-  EXPECT_GE(crossings, 0);
 }
 
 double coverage(const Image& image) {

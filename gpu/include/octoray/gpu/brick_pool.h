@@ -58,7 +58,6 @@ class BrickPool {
   // the visibility feedback saw it this frame (eviction keeps seen nodes longer).
   void pin(int64_t id);
   void markSeen(int64_t id);
-  bool pinned(int64_t id) const;
   // Slots not pinned this frame (that allocate() may hand out).
   int64_t freeSlots() const;
 
