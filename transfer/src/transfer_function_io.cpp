@@ -132,6 +132,24 @@ void saveTransferFunction(const TransferFunction& tf, const fs::path& path) {
   saveTransferFunctions({tf}, path);
 }
 
+std::string transferFunctionToJsonText(const TransferFunction& tf) {
+  validate(tf);
+  return detail::toOctorayJsonText({tf});
+}
+
+TransferFunction transferFunctionFromJsonText(const std::string& text, const std::string& path) {
+  nlohmann::json root;
+  try {
+    root = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(path, std::string("transfer function: ") + e.what());
+  }
+  std::vector<TransferFunction> tfs = detail::parseOctorayJson(root, path);
+  if (tfs.size() != 1) throw Error(path, "transfer function: expected exactly one");
+  validate(tfs.front(), path);
+  return tfs.front();
+}
+
 void saveTransferFunctions(const std::vector<TransferFunction>& tfs, const fs::path& path) {
   if (tfs.empty()) throw Error(path.string(), "nothing to save (no transfer functions)");
   std::set<std::string> names;

@@ -27,6 +27,12 @@ void saveTransferFunction(const TransferFunction& tf, const std::filesystem::pat
 void saveTransferFunctions(const std::vector<TransferFunction>& tfs,
                            const std::filesystem::path& path);
 
+// One transfer function as the text of an octoray JSON file, and back (validated; `path`
+// names where the JSON came from in messages): for documents that embed a function, such as
+// the viewer's session file.
+std::string transferFunctionToJsonText(const TransferFunction& tf);
+TransferFunction transferFunctionFromJsonText(const std::string& text, const std::string& path);
+
 // The --tf-name rule: with an empty `name`, the only function in the list (an error when
 // there are several, listing them); otherwise the function with exactly that name, or failing
 // that the only one whose name matches ignoring case. `path` names the file in messages.

@@ -1,0 +1,355 @@
+// The viewer's library without a window: the session JSON, scripts, MPR planes and slices
+// over a store's bricks (against a volume whose values are a known linear function of the
+// index, which trilinear interpolation and the octree's box filter both reproduce exactly),
+// slabs, window/level and measurements.
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+
+#include "memory_volume.h"
+#include "octoray/core/error.h"
+#include "octoray/transfer/transfer_function_io.h"
+#include "octoray/viewer/dataset.h"
+#include "octoray/viewer/measure.h"
+#include "octoray/viewer/mpr.h"
+#include "octoray/viewer/presets.h"
+#include "octoray/viewer/script.h"
+#include "octoray/viewer/session.h"
+#include "octoray/volume/store_builder.h"
+#include "test_paths.h"
+
+namespace octoray::viewer {
+namespace {
+
+using nlohmann::json;
+
+double linear(Vec3 q) { return q.x + 2 * q.y + 3 * q.z + 100; }
+
+std::string buildLinearStore(const std::string& name, int border = 1) {
+  const auto dir = test::freshTempDir(name);
+  test::MemoryVolume volume({70, 60, 40}, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(linear({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
+  });
+  const std::string path = (dir / "linear.octoray").string();
+  volume::BuildOptions options;
+  options.brickSize = 16;
+  options.border = border;
+  volume::buildStore(volume, path, options);
+  return path;
+}
+
+Session sessionFor(const Grid& grid) {
+  Session s;
+  s.tf = transfer::findPreset("bone");
+  s.crosshair = grid.centre();
+  return s;
+}
+
+// Slices until complete, letting the loader bring the bricks in between.
+Slice sliceUntilComplete(StoreSlicer& slicer, const SliceRequest& req, Slice* first = nullptr) {
+  for (int attempt = 0; attempt < 200; ++attempt) {
+    slicer.beginFrame();
+    Slice s = slicer.slice(req);
+    slicer.endFrame();
+    if (attempt == 0 && first) *first = s;
+    if (s.complete()) return s;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    slicer.bricksArrived();
+  }
+  ADD_FAILURE() << "slice never completed";
+  return {};
+}
+
+TEST(ViewerMpr, StandardPlanesFollowTheRadiologicalConvention) {
+  Vec3 r, d, n;
+  viewAxes(ViewId::Axial, Mat4::identity(), r, d, n);
+  EXPECT_EQ(orientationLabel(r), "L");  // patient's left on the screen's right
+  EXPECT_EQ(orientationLabel(d), "P");  // anterior at the top
+  EXPECT_EQ(orientationLabel(n), "S");
+  viewAxes(ViewId::Coronal, Mat4::identity(), r, d, n);
+  EXPECT_EQ(orientationLabel(r), "L");
+  EXPECT_EQ(orientationLabel(d), "I");
+  viewAxes(ViewId::Sagittal, Mat4::identity(), r, d, n);
+  EXPECT_EQ(orientationLabel(r), "P");
+  EXPECT_EQ(orientationLabel(-1.0 * r), "A");
+  EXPECT_EQ(orientationLabel(d), "I");
+  EXPECT_EQ(orientationLabel(normalize(Vec3{1, -0.5, 0})), "LA");
+}
+
+TEST(ViewerMpr, PlanePassesThroughTheCrosshairAndFitsTheVolume) {
+  const Grid grid({100, 80, 50}, Mat4::fromColumns({0.5, 0, 0}, {0, 0.5, 0}, {0, 0.3, 2.0}, {-20, 10, 300}));
+  Session s;
+  s.crosshair = grid.centre() + Vec3{3, -4, 7};
+  for (ViewId v : {ViewId::Axial, ViewId::Coronal, ViewId::Sagittal}) {
+    const MprPlane p = mprPlane(v, s, grid, 400, 300);
+    EXPECT_NEAR(dot(s.crosshair - p.origin, p.normal), 0.0, 1e-9) << viewName(v);
+    const double fit = std::max(grid.extentAlong(p.right) / 400, grid.extentAlong(p.down) / 300);
+    EXPECT_NEAR(p.mmPerPixel, fit, 1e-12) << viewName(v);
+    // pixelOf inverts at().
+    const auto px = p.pixelOf(p.at(123.25, 77.5));
+    EXPECT_NEAR(px[0], 123.25, 1e-9);
+    EXPECT_NEAR(px[1], 77.5, 1e-9);
+  }
+  // Zoom 2 halves the pixel size; pan moves the view centre along the screen axes.
+  s.mprViews[0] = {2.0, 10.0, -5.0};
+  const MprPlane zoomed = mprPlane(ViewId::Axial, s, grid, 400, 300);
+  const MprPlane plain = mprPlane(ViewId::Axial, Session{.crosshair = s.crosshair}, grid, 400, 300);
+  EXPECT_NEAR(zoomed.mmPerPixel, 0.5 * plain.mmPerPixel, 1e-12);
+  const Vec3 shift = zoomed.at(200, 150) - plain.at(200, 150);
+  EXPECT_NEAR(shift.x, 10.0, 1e-9);
+  EXPECT_NEAR(shift.y, -5.0, 1e-9);
+  // The slice step along the axial normal of a sheared (tilted) grid is the k axis' z step.
+  EXPECT_NEAR(grid.sliceStepMm({0, 0, 1}), 2.0, 1e-12);
+}
+
+TEST(ViewerMpr, WindowGreyIsDicomLinearVoi) {
+  const WindowLevel wl{80, 40};
+  EXPECT_EQ(windowGrey(0.0, wl), 0);    // c - 0.5 - (w - 1) / 2 = 0
+  EXPECT_EQ(windowGrey(79.0, wl), 255);  // just below c - 0.5 + (w - 1) / 2 = 79 is still in
+  EXPECT_EQ(windowGrey(79.5, wl), 255);
+  EXPECT_EQ(windowGrey(40.0, wl), 129);  // ((40 - 39.5) / 79 + 0.5) * 255 = 129.1
+  EXPECT_EQ(windowGrey(std::nan(""), wl), 0);
+  EXPECT_LT(windowGrey(20.0, wl), windowGrey(60.0, wl));
+}
+
+TEST(ViewerMpr, SlicesOfALinearVolumeAreExactAndNeverBlankWhileLoading) {
+  const std::string path = buildLinearStore("viewer-linear");
+  const volume::StoreReader store(path);
+  volume::BrickCache cache(256u << 20);
+  StoreSlicer slicer(store, cache);
+  const Grid& grid = slicer.grid();
+  Session s = sessionFor(grid);
+  s.mprRotation = Mat4::fromColumns(normalize({1, 0.2, 0}), normalize(cross({0, 0, 1}, normalize({1, 0.2, 0}))), {0, 0, 1}, {});
+  for (ViewId v : {ViewId::Axial, ViewId::Coronal, ViewId::Sagittal}) {
+    SliceRequest req;
+    req.plane = mprPlane(v, s, grid, 96, 80);
+    req.level = store.layout().leafLevel();
+    Slice first;
+    const Slice slice = sliceUntilComplete(slicer, req, &first);
+    ASSERT_EQ(slice.hu.size(), 96u * 80u);
+    int inside = 0;
+    for (int y = 0; y < 80; ++y) {
+      for (int x = 0; x < 96; ++x) {
+        const Vec3 q = grid.indexFromPatient.transformPoint(req.plane.at(x + 0.5, y + 0.5));
+        const bool in = q.x >= -0.5 && q.y >= -0.5 && q.z >= -0.5 && q.x <= 69.5 && q.y <= 59.5 && q.z <= 39.5;
+        const float value = slice.hu[static_cast<std::size_t>(y * 96 + x)];
+        if (!in) {
+          EXPECT_TRUE(std::isnan(value));
+          continue;
+        }
+        ++inside;
+        // Inside the sample grid the interpolant is the linear function itself; in the half
+        // voxel beyond the outermost samples, the edge value is held.
+        const Vec3 c{std::clamp(q.x, 0.0, 69.0), std::clamp(q.y, 0.0, 59.0), std::clamp(q.z, 0.0, 39.0)};
+        ASSERT_NEAR(value, linear(c), 2e-3) << viewName(v) << " pixel " << x << "," << y;
+        // The first, partly loaded slice already shows data everywhere inside.
+        EXPECT_FALSE(std::isnan(first.hu[static_cast<std::size_t>(y * 96 + x)]));
+      }
+    }
+    EXPECT_GT(inside, 1000) << viewName(v);
+  }
+}
+
+TEST(ViewerMpr, SlabModesCombineAlongTheNormal) {
+  const std::string path = buildLinearStore("viewer-slab");
+  const volume::StoreReader store(path);
+  volume::BrickCache cache(256u << 20);
+  StoreSlicer slicer(store, cache);
+  const Grid& grid = slicer.grid();
+  Session s = sessionFor(grid);
+  SliceRequest req;
+  req.plane = mprPlane(ViewId::Axial, s, grid, 64, 64);
+  req.level = store.layout().leafLevel();
+  const Slice centre = sliceUntilComplete(slicer, req);
+  req.slabMm = 8;  // 4 slices of 2 mm; the value grows along +z, so MIP is the top sample
+  req.slab = SlabMode::Mip;
+  const Slice mip = sliceUntilComplete(slicer, req);
+  req.slab = SlabMode::MinIp;
+  const Slice minip = sliceUntilComplete(slicer, req);
+  req.slab = SlabMode::Mean;
+  const Slice mean = sliceUntilComplete(slicer, req);
+  const int n = mip.slabSamples;
+  EXPECT_GE(n, 16);  // at most half the smallest spacing apart
+  // Along the axial normal the sheared k axis moves 2 mm per slice, the index grows 1/2 per
+  // mm in k, so the linear value changes by 3 * 0.5 = 1.5 per mm (and y by -0.1*... via j).
+  const std::size_t p = 32 * 64 + 32;
+  const Vec3 q0 = grid.indexFromPatient.transformPoint(req.plane.at(32.5, 32.5));
+  const Vec3 qTop = grid.indexFromPatient.transformPoint(req.plane.at(32.5, 32.5) + (4.0 - 4.0 / n) * req.plane.normal);
+  const Vec3 qBottom = grid.indexFromPatient.transformPoint(req.plane.at(32.5, 32.5) - (4.0 - 4.0 / n) * req.plane.normal);
+  EXPECT_NEAR(centre.hu[p], linear(q0), 2e-3);
+  EXPECT_NEAR(mip.hu[p], std::max(linear(qTop), linear(qBottom)), 2e-3);
+  EXPECT_NEAR(minip.hu[p], std::min(linear(qTop), linear(qBottom)), 2e-3);
+  EXPECT_NEAR(mean.hu[p], linear(q0), 2e-3);  // symmetric samples of a linear function
+}
+
+TEST(ViewerMpr, TargetLevelFollowsThePixelSize) {
+  const std::string path = buildLinearStore("viewer-level");
+  const volume::StoreReader store(path);
+  volume::BrickCache cache(64u << 20);
+  StoreSlicer slicer(store, cache);
+  const int leaf = store.layout().leafLevel();
+  EXPECT_EQ(slicer.targetLevel(0.1), leaf);
+  EXPECT_EQ(slicer.targetLevel(4.0), leaf);      // largest spacing 2.0025 mm: 4.005 mm one level up
+  EXPECT_EQ(slicer.targetLevel(4.1), leaf - 1);  // the next level's 4.005 mm voxels fit a 4.1 mm pixel
+  EXPECT_EQ(slicer.targetLevel(1e6), 0);
+}
+
+TEST(ViewerPreview, PreviewSlicesEqualTheSource) {
+  test::MemoryVolume volume({40, 30, 20}, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(linear({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
+  });
+  PreviewVolume preview(volume.info(), 64u << 20);
+  EXPECT_EQ(preview.factor(), 1);
+  std::atomic<bool> cancel{false};
+  preview.fill(volume, cancel);
+  EXPECT_DOUBLE_EQ(preview.fraction(), 1.0);
+  Session s;
+  s.crosshair = preview.grid().centre();
+  SliceRequest req;
+  req.plane = mprPlane(ViewId::Coronal, s, preview.grid(), 50, 40);
+  const Slice slice = preview.slice(req);
+  const Vec3 q = preview.grid().indexFromPatient.transformPoint(req.plane.at(25.5, 20.5));
+  EXPECT_NEAR(slice.hu[20 * 50 + 25], linear(q), 1e-3);
+  // A budget too small for the full volume halves the resolution.
+  PreviewVolume small(volume.info(), 40 * 30 * 20 * 4 / 4);
+  EXPECT_EQ(small.factor(), 2);
+}
+
+TEST(ViewerMeasure, DistanceAngleAndRoi) {
+  Measurement d{MeasureKind::Distance, ViewId::Axial, {{0, 0, 0}, {3, 4, 0}}};
+  EXPECT_DOUBLE_EQ(distanceMm(d), 5.0);
+  Measurement a{MeasureKind::Angle, ViewId::Axial, {{1, 0, 0}, {0, 0, 0}, {0, 2, 0}}};
+  EXPECT_NEAR(angleDegrees(a), 90.0, 1e-12);
+  Measurement r{MeasureKind::Rectangle, ViewId::Axial, {{10, 10, 5}, {0, 4, 5}}};  // any corner order
+  const auto pts = roiSamplePositions(r, 1.0);
+  EXPECT_EQ(pts.size(), 10u * 6u);
+  for (const Vec3& p : pts) {
+    EXPECT_GT(p.x, 0);
+    EXPECT_LT(p.x, 10);
+    EXPECT_GT(p.y, 4);
+    EXPECT_LT(p.y, 10);
+    EXPECT_EQ(p.z, 5);
+  }
+  std::vector<double> values{1, 2, 3, 4, std::nan("")};
+  const RoiStats st = roiStats(r, values);
+  EXPECT_EQ(st.samples, 4);
+  EXPECT_DOUBLE_EQ(st.mean, 2.5);
+  EXPECT_DOUBLE_EQ(st.sd, std::sqrt(1.25));
+  EXPECT_DOUBLE_EQ(st.areaMm2, 60.0);
+  Measurement e{MeasureKind::Ellipse, ViewId::Axial, {{0, 0, 0}, {20, 10, 0}}};
+  EXPECT_NEAR(roiStats(e, {}).areaMm2, std::numbers::pi * 10 * 5, 1e-9);
+  const auto inside = roiSamplePositions(e, 0.5);
+  EXPECT_NEAR(static_cast<double>(inside.size()) * 0.25, std::numbers::pi * 50, 3.0);
+}
+
+TEST(ViewerSession, JsonRoundTripsEveryField) {
+  Session s;
+  s.source = "/data/head";
+  s.layout = Layout::OnePlusThree;
+  s.mainView = ViewId::Coronal;
+  s.tf = transfer::findPreset("lung");
+  s.preset = "lung";
+  s.mode = gpu::RaycastMode::Mip;
+  s.isoValue = -400;
+  s.lodPixels = 2;
+  s.wl = {1500, -600};
+  s.wlPreset = "lung";
+  s.crosshair = {1.5, -2.25, 700};
+  s.mprRotation = Mat4::fromColumns({0, 1, 0}, {-1, 0, 0}, {0, 0, 1}, {});
+  s.slab = SlabMode::Mean;
+  s.slabMm = 12;
+  s.mprViews[2] = {3, 4, -5};
+  s.measurements.push_back({MeasureKind::Angle, ViewId::Sagittal, {{1, 2, 3}, {4, 5, 6}, {7, 8, 10}}, {0, 1, 0}, {0, 0, -1}});
+  s.patientInfo = true;
+  const Session back = sessionFromJson(sessionToJson(s), "s.json");
+  EXPECT_EQ(sessionToJson(back), sessionToJson(s));
+  EXPECT_EQ(back.measurements.at(0).points.at(2).z, 10);
+}
+
+TEST(ViewerSession, BadFieldsAreNamed) {
+  const json good = sessionToJson(Session{.tf = transfer::findPreset("bone")});
+  auto expectError = [&](json j, const std::string& field) {
+    try {
+      sessionFromJson(j, "bad.json");
+      ADD_FAILURE() << "accepted a bad " << field;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.path(), "bad.json");
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  json j = good;
+  j["windowLevel"]["window"] = -5;
+  expectError(j, "windowLevel.window");
+  j = good;
+  j["mprRotation"][0] = {2, 0, 0};
+  expectError(j, "mprRotation");
+  j = good;
+  j["surprise"] = 1;
+  expectError(j, "surprise");
+  j = good;
+  j["layout"] = "nine-up";
+  expectError(j, "layout");
+  j = good;
+  j["measurements"] = json::array({{{"kind", "distance"}, {"view", "axial"}, {"points", {{0, 0, 0}}},
+                                    {"right", {1, 0, 0}}, {"down", {0, 1, 0}}}});
+  expectError(j, "measurements[0].points");
+  j = good;
+  j["camera"]["eye"] = j["camera"]["target"];
+  expectError(j, "camera");
+}
+
+TEST(ViewerScript, ParsesStepsAndNamesBadOnes) {
+  const json script = json::parse(R"({"format": "octoray-view-script", "version": 1, "events": [
+    {"type": "drag", "button": "middle", "from": [10, 20], "to": {"view": "axial", "fraction": [0.5, 0.5]}, "steps": 3},
+    {"type": "key", "key": "PageUp", "wait": 0},
+    {"type": "click", "at": {"view": "coronal", "patient": [1, 2, 3]}, "mods": ["shift", "ctrl"]},
+    {"type": "screenshot", "path": "a.png", "view": "3d"},
+    {"type": "action", "name": "layout", "value": "one-up"}]})");
+  const auto steps = parseScript(script, "s.json");
+  ASSERT_EQ(steps.size(), 5u);
+  EXPECT_EQ(steps[0].button, MouseButton::Middle);
+  EXPECT_EQ(steps[0].steps, 3);
+  EXPECT_EQ(*steps[0].to.view, ViewId::Axial);
+  EXPECT_EQ(steps[1].wait, 0);
+  EXPECT_EQ(steps[2].mods, kShift | kCtrl);
+  EXPECT_EQ(steps[2].at.patient->z, 3);
+  EXPECT_EQ(*steps[3].view, ViewId::Volume);
+  for (const char* bad : {R"([{"type": "teleport"}])", R"([{"type": "drag", "from": [1, 2]}])",
+                          R"([{"type": "click", "at": {"view": "side", "pixel": [1, 2]}}])",
+                          R"([{"type": "click", "at": {"view": "3d", "patient": [1, 2, 3]}}])",
+                          R"([{"type": "key"}])", R"([{"type": "move", "at": [1, 2], "colour": 1}])"}) {
+    try {
+      parseScript(json::parse(bad), "s.json");
+      ADD_FAILURE() << "accepted " << bad;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("s.json: script step 0"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(ViewerPresets, ShippedTableHasKeysOneToNineWithSources) {
+  const auto presets = loadWindowLevelPresets(defaultWindowLevelPresetsPath());
+  ASSERT_EQ(presets.size(), 9u);
+  for (std::size_t i = 0; i < presets.size(); ++i) {
+    EXPECT_EQ(presets[i].key, static_cast<int>(i) + 1);
+    EXPECT_FALSE(presets[i].source.empty()) << presets[i].name;
+  }
+  EXPECT_EQ(presets[0].name, "brain");
+  EXPECT_EQ(presets[0].window, 80);
+  EXPECT_EQ(presets[0].level, 40);
+}
+
+TEST(ViewerDataset, StoreCacheKeyDependsOnContentNotPath) {
+  test::MemoryVolume a({20, 20, 10}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });
+  test::MemoryVolume b({20, 20, 10}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });
+  test::MemoryVolume c({20, 20, 10}, [](int64_t i, int64_t, int64_t k) { return static_cast<float>(i + (k == 9)); });
+  EXPECT_EQ(storeCacheKey(a), storeCacheKey(b));
+  EXPECT_NE(storeCacheKey(a), storeCacheKey(c));  // the last slice differs
+}
+
+}  // namespace
+}  // namespace octoray::viewer

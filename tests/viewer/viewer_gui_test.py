@@ -1,0 +1,406 @@
+"""octoray-view driven as a person would, under Xvfb (llvmpipe): scripted mouse and key input
+through the same handlers as real input, checked from screenshots and the viewer's state file
+against independent references (pydicom + numpy for MPR slices and measurements,
+octoray-render for the 3D view). Needs ../shared/data (skips with a message where absent)."""
+import json
+import math
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import numpy as np
+from PIL import Image
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from dicom_oracle import DicomVolume, window_grey  # noqa: E402
+
+BIN = os.environ.get("OCTORAY_BIN", "build/bin")
+SHARED = os.environ.get("OCTORAY_SHARED", os.path.join(os.path.dirname(__file__), "../../../shared"))
+PHILIPS = os.path.join(SHARED, "data/dicom/dcm_qa_ct/Philips")
+HEAD = os.path.join(PHILIPS, "S21570/S2020")      # 1 mm head, 512 x 512 x 140, no tilt
+TILTED = os.path.join(PHILIPS, "S21610/S2010")    # gantry tilt -18.5 degrees, 2.5 mm
+SIZE = (1280, 800)
+
+
+def run(argv, timeout=600, env=None):
+    p = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=env)
+    return p
+
+
+class Viewer:
+    """One octoray-view process on a private X server, running a script to its end."""
+
+    def __init__(self, workdir):
+        self.workdir = workdir
+        self.count = 0
+
+    def run(self, data, steps, extra=(), expect_ok=True):
+        self.count += 1
+        script = os.path.join(self.workdir, f"script{self.count}.json")
+        with open(script, "w") as f:
+            json.dump({"format": "octoray-view-script", "version": 1, "events": steps + [{"type": "quit"}]}, f)
+        env = dict(os.environ, OCTORAY_CONFIG=os.path.join(self.workdir, "config"))
+        argv = ["xvfb-run", "-a", "-s", f"-screen 0 {SIZE[0]}x{SIZE[1]}x24", os.path.join(BIN, "octoray-view")]
+        if data:
+            argv.append(data)
+        argv += ["--script", script, "--exit", "--size", f"{SIZE[0]}x{SIZE[1]}",
+                 "--cache-dir", os.path.join(self.workdir, "cache"), *extra]
+        p = run(argv, env=env)
+        if expect_ok and p.returncode != 0:
+            raise AssertionError(f"octoray-view failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
+        return p
+
+    def path(self, name):
+        return os.path.join(self.workdir, name)
+
+
+def load_json(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def load_png(path):
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def crop(image, rect):
+    x, y, w, h = rect
+    return image[y:y + h, x:x + w]
+
+
+def psnr(a, b):
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return math.inf if mse == 0 else 10 * math.log10(255.0 ** 2 / mse)
+
+
+def rotation_about(axis, degrees):
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    a = math.radians(degrees)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * (k @ k)
+
+
+@unittest.skipUnless(os.path.isdir(PHILIPS), f"skipped: {PHILIPS} is absent (real test data lives in ../shared)")
+class ViewerGui(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="octoray-view-test-", dir=os.environ.get("OCTORAY_TEST_TMP"))
+        cls.head_store = os.path.join(cls.tmp, "head.octoray")
+        cls.tilted_store = os.path.join(cls.tmp, "tilted.octoray")
+        for src, dst in ((HEAD, cls.head_store), (TILTED, cls.tilted_store)):
+            p = run([os.path.join(BIN, "octoray-import"), src, "-o", dst, "--border", "2"])
+            assert p.returncode == 0, p.stderr
+        cls.head = DicomVolume(HEAD)
+        cls.tilted = DicomVolume(TILTED)
+
+    @classmethod
+    def tearDownClass(cls):
+        if not os.environ.get("OCTORAY_KEEP_TEST_OUTPUT"):
+            shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def viewer(self, name):
+        d = os.path.join(self.tmp, name)
+        os.makedirs(d, exist_ok=True)
+        return Viewer(d)
+
+    def assert_mpr_matches(self, volume, shot, state, view, wl=None, label=""):
+        """The view's pixels equal the reference slice through the plane the viewer reports."""
+        v = state["views"][view]
+        self.assertTrue(v["complete"], f"{label}{view}: slice still loading")
+        plane = v["plane"]
+        self.assertEqual([plane["width"], plane["height"]], v["rect"][2:])
+        expected_values = volume.plane_values(plane)
+        w = wl or state["session"]["windowLevel"]
+        expected = window_grey(expected_values, w["window"], w["level"])
+        got = crop(shot, v["rect"])
+        self.assertTrue(np.all(got[:, :, 0] == got[:, :, 1]) and np.all(got[:, :, 1] == got[:, :, 2]),
+                        f"{label}{view}: not grey (overlays drawn?)")
+        diff = np.abs(got[:, :, 0].astype(int) - expected.astype(int))
+        exact = np.mean(diff == 0)
+        # Rounding at the window's .5 boundaries may flip a grey level; nothing more.
+        self.assertLessEqual(int(diff.max()), 1, f"{label}{view}: max grey difference {diff.max()}")
+        self.assertGreater(exact, 0.995, f"{label}{view}: only {exact:.4f} of pixels equal")
+        # And the picture is not blank: the slice shows anatomy with contrast.
+        self.assertGreater(float(np.std(got[:, :, 0])), 20.0, f"{label}{view}: flat image")
+
+    # (b) MPR views equal slices computed independently, axial/coronal/sagittal and oblique.
+    def test_mpr_views_match_independent_slices(self):
+        vw = self.viewer("mpr")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "action", "name": "wl-preset", "value": "bone"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("straight.png")},
+            {"type": "action", "name": "rotate-planes", "value": {"view": "axial", "degrees": 30}},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("oblique.png")},
+        ]
+        vw.run(self.head_store, steps)
+        shot = load_png(vw.path("straight.png"))
+        state = load_json(vw.path("straight.png.json"))
+        views = state["views"]
+        # Radiological convention: patient's left on the screen's right (axial, coronal);
+        # anterior at the top of the axial view, superior at the top of coronal and sagittal.
+        np.testing.assert_allclose(views["axial"]["plane"]["right"], [1, 0, 0], atol=1e-9)
+        np.testing.assert_allclose(views["axial"]["plane"]["down"], [0, 1, 0], atol=1e-9)
+        np.testing.assert_allclose(views["coronal"]["plane"]["right"], [1, 0, 0], atol=1e-9)
+        np.testing.assert_allclose(views["coronal"]["plane"]["down"], [0, 0, -1], atol=1e-9)
+        np.testing.assert_allclose(views["sagittal"]["plane"]["right"], [0, 1, 0], atol=1e-9)
+        np.testing.assert_allclose(views["sagittal"]["plane"]["down"], [0, 0, -1], atol=1e-9)
+        self.assertEqual(views["axial"]["labels"], {"left": "R", "right": "L", "top": "A", "bottom": "P"})
+        self.assertEqual(views["sagittal"]["labels"], {"left": "A", "right": "P", "top": "S", "bottom": "I"})
+        crosshair = np.array(state["session"]["crosshair"])
+        for view in ("axial", "coronal", "sagittal"):
+            p = views[view]["plane"]
+            self.assertAlmostEqual(float(np.dot(crosshair - np.array(p["origin"]), p["normal"])), 0.0, places=6)
+            self.assertEqual(views[view]["level"], 4, f"{view}: not the finest level")
+            self.assert_mpr_matches(self.head, shot, state, view)
+        # Oblique: the coronal and sagittal planes turned 30 degrees about the axial normal.
+        shot = load_png(vw.path("oblique.png"))
+        state = load_json(vw.path("oblique.png.json"))
+        r = rotation_about([0, 0, 1], 30)
+        np.testing.assert_allclose(state["views"]["coronal"]["plane"]["normal"], r @ [0, 1, 0], atol=1e-9)
+        np.testing.assert_allclose(state["views"]["sagittal"]["plane"]["normal"], r @ [-1, 0, 0], atol=1e-9)
+        for view in ("axial", "coronal", "sagittal"):
+            self.assert_mpr_matches(self.head, shot, state, view, label="oblique ")
+
+    # (b) with a gantry tilt: the shear is in the geometry, the slices still agree.
+    def test_tilted_series_mpr(self):
+        vw = self.viewer("tilted")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "action", "name": "wl-preset", "value": "bone"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("tilted.png")},
+        ]
+        vw.run(self.tilted_store, steps)
+        shot = load_png(vw.path("tilted.png"))
+        state = load_json(vw.path("tilted.png.json"))
+        for view in ("axial", "coronal", "sagittal"):
+            self.assert_mpr_matches(self.tilted, shot, state, view, label="tilted ")
+
+    # (a) the 3D view equals octoray-render for the same camera and TF.
+    def test_3d_view_matches_octoray_render(self):
+        vw = self.viewer("render")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "drag", "button": "left", "from": {"view": "3d", "fraction": [0.5, 0.5]},
+             "to": {"view": "3d", "fraction": [0.62, 0.45]}, "steps": 4},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("view3d.png")},
+        ]
+        vw.run(self.head_store, steps, extra=["--preset", "bone"])
+        state = load_json(vw.path("view3d.png.json"))
+        camera = state["views"]["3d"]["camera"]
+        self.assertNotAlmostEqual(camera["eye"][0], 0.0, places=1, msg="the drag did not rotate the camera")
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        ref = vw.path("render.png")
+        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
+                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "bone", "-o", ref])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        got, want = load_png(vw.path("view3d.png")), load_png(ref)
+        self.assertEqual(got.shape, want.shape)
+        self.assertGreater(float(want.std()), 10.0, "reference is blank")
+        value = psnr(got, want)
+        self.assertGreaterEqual(value, 40.0, f"3D view vs octoray-render: PSNR {value:.1f} dB")
+
+    # (c) a scripted W/L drag: right widens the window, up raises the level, by W/200 HU/pixel.
+    def test_window_level_drag(self):
+        vw = self.viewer("wl")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "key", "key": "1"},  # brain 80/40
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("before.json")},
+            {"type": "drag", "button": "left", "from": {"view": "axial", "pixel": [200, 200]},
+             "to": {"view": "axial", "pixel": [300, 150]}, "steps": 5},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("after.png")},
+        ]
+        vw.run(self.head_store, steps)
+        before = load_json(vw.path("before.json"))["session"]["windowLevel"]
+        self.assertEqual((before["window"], before["level"]), (80, 40))
+        state = load_json(vw.path("after.png.json"))
+        wl = state["session"]["windowLevel"]
+        self.assertAlmostEqual(wl["window"], 80 + 100 * 80 / 200, places=6)
+        self.assertAlmostEqual(wl["level"], 40 + 50 * 80 / 200, places=6)
+        self.assert_mpr_matches(self.head, load_png(vw.path("after.png")), state, "axial", wl=wl)
+
+    # (d) distance between two known voxels, (e) ROI mean/SD, and the linked crosshair.
+    def test_measurements_and_crosshair(self):
+        vw = self.viewer("measure")
+        k = 70
+        centre = self.head.patient(256, 256, k)
+        a, b = self.head.patient(180, 240, k), self.head.patient(330, 300, k)
+        c0, c1 = self.head.patient(230, 300, k), self.head.patient(290, 340, k)
+        probe = self.head.patient(300, 200, k)
+        steps = [
+            {"type": "action", "name": "crosshair", "value": list(centre)},
+            {"type": "action", "name": "layout", "value": "one-up"},
+            {"type": "action", "name": "maximise", "value": "axial"},
+            {"type": "wait-converged"},
+            {"type": "action", "name": "tool", "value": "distance"},
+            {"type": "drag", "from": {"view": "axial", "patient": list(a)}, "to": {"view": "axial", "patient": list(b)}, "steps": 3},
+            {"type": "action", "name": "tool", "value": "ellipse"},
+            {"type": "drag", "from": {"view": "axial", "patient": list(c0)}, "to": {"view": "axial", "patient": list(c1)}, "steps": 3},
+            {"type": "action", "name": "tool", "value": "rectangle"},
+            {"type": "drag", "from": {"view": "axial", "patient": list(c0)}, "to": {"view": "axial", "patient": list(c1)}, "steps": 3},
+            {"type": "click", "at": {"view": "axial", "patient": list(probe)}, "mods": ["shift"]},
+            {"type": "action", "name": "layout", "value": "four-up"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("measured.png")},
+        ]
+        vw.run(self.head_store, steps)
+        state = load_json(vw.path("measured.png.json"))
+        m = state["measurements"]
+        self.assertEqual([x["kind"] for x in m], ["distance", "ellipse", "rectangle"])
+        self.assertAlmostEqual(m[0]["mm"], float(np.linalg.norm(b - a)), places=4)
+        # The ROIs' statistics on the documented grid (smallest spacing, centred in the box).
+        step = min(np.linalg.norm(self.head.affine[:3, i]) for i in range(3))
+        for roi, kind in ((m[1], "ellipse"), (m[2], "rectangle")):
+            wmm, hmm = abs(c1[0] - c0[0]), abs(c1[1] - c0[1])
+            nu, nv = max(1, int(math.floor(wmm / step))), max(1, int(math.floor(hmm / step)))
+            u = 0.5 * (wmm - (nu - 1) * step) + np.arange(nu) * step
+            v = 0.5 * (hmm - (nv - 1) * step) + np.arange(nv) * step
+            uu, vv = np.meshgrid(u, v)
+            keep = np.ones_like(uu, dtype=bool)
+            if kind == "ellipse":
+                keep = ((uu - wmm / 2) / (wmm / 2)) ** 2 + ((vv - hmm / 2) / (hmm / 2)) ** 2 <= 1
+            corner = np.array([min(c0[0], c1[0]), min(c0[1], c1[1]), c0[2]])
+            pts = corner + uu[keep][:, None] * [1, 0, 0] + vv[keep][:, None] * [0, 1, 0]
+            values = self.head.sample(pts)
+            self.assertEqual(roi["samples"], len(values))
+            self.assertAlmostEqual(roi["mean"], float(values.mean()), delta=0.01)
+            self.assertAlmostEqual(roi["sd"], float(values.std()), delta=0.01)
+            self.assertAlmostEqual(roi["min"], float(values.min()), delta=0.01)
+            self.assertAlmostEqual(roi["max"], float(values.max()), delta=0.01)
+            area = math.pi * wmm * hmm / 4 if kind == "ellipse" else wmm * hmm
+            self.assertAlmostEqual(roi["areaMm2"], area, delta=1e-3)
+            self.assertGreater(roi["sd"], 0.0)
+        # Shift+click moved the crosshair to the probe; the other planes pass through it.
+        np.testing.assert_allclose(state["session"]["crosshair"], probe, atol=1e-6)
+        for view in ("coronal", "sagittal"):
+            p = state["views"][view]["plane"]
+            self.assertAlmostEqual(float(np.dot(probe - np.array(p["origin"]), p["normal"])), 0.0, places=6)
+
+    # (f) saving and reloading a session restores the same screenshot, bit for bit.
+    def test_session_roundtrip(self):
+        vw = self.viewer("session")
+        steps = [
+            {"type": "action", "name": "wl-preset", "value": "bone"},
+            {"type": "drag", "from": {"view": "axial", "pixel": [150, 150]}, "to": {"view": "axial", "pixel": [190, 130]}, "steps": 3},
+            {"type": "wheel", "at": {"view": "coronal", "fraction": [0.5, 0.5]}, "dy": 5},
+            {"type": "drag", "button": "left", "from": {"view": "3d", "fraction": [0.5, 0.5]},
+             "to": {"view": "3d", "fraction": [0.4, 0.55]}, "steps": 3},
+            {"type": "action", "name": "tool", "value": "distance"},
+            {"type": "drag", "from": {"view": "axial", "patient": list(self.head.patient(200, 200, 70))},
+             "to": {"view": "axial", "patient": list(self.head.patient(260, 280, 70))}, "steps": 2},
+            {"type": "action", "name": "slab", "value": "mip"},
+            {"type": "action", "name": "slab-mm", "value": 8},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("first.png")},
+            {"type": "save-session", "path": vw.path("session.json")},
+        ]
+        vw.run(self.head_store, steps)
+        saved = load_json(vw.path("session.json"))
+        self.assertEqual(saved["format"], "octoray-session")
+        self.assertEqual(len(saved["measurements"]), 1)
+        self.assertEqual(saved["slab"], {"mode": "mip", "thicknessMm": 8})
+        vw.run(None, [{"type": "wait-converged"}, {"type": "screenshot", "path": vw.path("second.png")}],
+               extra=["--session", vw.path("session.json")])
+        first, second = load_png(vw.path("first.png")), load_png(vw.path("second.png"))
+        self.assertEqual(first.shape, second.shape)
+        s1 = load_json(vw.path("first.png.json"))
+        s2 = load_json(vw.path("second.png.json"))
+        for view in ("axial", "coronal", "sagittal"):
+            # The MPR views with their overlays and the measurement: bit for bit.
+            self.assertEqual(s1["views"][view]["rect"], s2["views"][view]["rect"])
+            a, b = crop(first, s1["views"][view]["rect"]), crop(second, s2["views"][view]["rect"])
+            self.assertEqual(int(np.count_nonzero(np.any(a != b, axis=2))), 0, f"{view} differs after reload")
+        # The 3D view: the same camera and the same converged working set; the picture may
+        # differ by one grey level where bricks sit in other pool slots (the sampling
+        # coordinates round differently), nowhere more.
+        self.assertEqual(s1["views"]["3d"]["camera"], s2["views"]["3d"]["camera"])
+        self.assertEqual(s1["views"]["3d"]["workingSet"]["leaves"], s2["views"]["3d"]["workingSet"]["leaves"])
+        a, b = crop(first, s1["views"]["3d"]["rect"]).astype(int), crop(second, s2["views"]["3d"]["rect"]).astype(int)
+        self.assertLessEqual(int(np.abs(a - b).max()), 1)
+        self.assertLess(float(np.mean(np.any(a != b, axis=2))), 0.005)
+
+    # Errors never black: a damaged store and an unsupported file show a message in the
+    # window, and the viewer keeps responding to input.
+    def test_errors_shown_and_viewer_responds(self):
+        vw = self.viewer("errors")
+        damaged = vw.path("damaged.octoray")
+        shutil.copy(self.head_store, damaged)
+        with open(damaged, "r+b") as f:
+            header = f.read(256)
+            node_count, table_offset = struct.unpack_from("<QQ", header, 176)
+            f.seek(table_offset)
+            table = f.read(node_count * 40)
+            damaged_nodes = 0
+            for i in range(node_count // 2, node_count):
+                offset, size = struct.unpack_from("<QI", table, i * 40)
+                if size > 16:
+                    f.seek(offset + size // 2)
+                    f.write(b"\xde\xad\xbe\xef" * 4)
+                    damaged_nodes += 1
+        self.assertGreater(damaged_nodes, 100)
+        steps = [
+            {"type": "wait-converged", "timeout": 120},
+            {"type": "key", "key": "4"},  # bone 1800/400: the viewer still takes input
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("damaged.png")},
+        ]
+        p = vw.run(damaged, steps)
+        state = load_json(vw.path("damaged.png.json"))
+        self.assertTrue(any("damaged.octoray" in m and "checksum" in m for m in state["messages"]), state["messages"])
+        self.assertEqual(state["session"]["windowLevel"]["window"], 1800)
+        self.assertIn("damaged.octoray", p.stderr)
+        # The picture is not black: coarser data stands in for the damaged bricks.
+        shot = load_png(vw.path("damaged.png"))
+        self.assertGreater(float(crop(shot, state["views"]["axial"]["rect"]).std()), 10.0)
+        # The banner is on screen: strongly red pixels over the views.
+        banner = shot[30:120, 0:900]
+        self.assertGreater(int(np.count_nonzero((banner[:, :, 0] > 90) & (banner[:, :, 1] < 40))), 2000)
+
+        text = vw.path("notes.txt")
+        with open(text, "w") as f:
+            f.write("not a volume\n")
+        steps = [{"type": "key", "key": "5"}, {"type": "wait-converged"},
+                 {"type": "screenshot", "path": vw.path("unsupported.png")}]
+        p = vw.run(text, steps)
+        state = load_json(vw.path("unsupported.png.json"))
+        self.assertTrue(any("notes.txt" in m for m in state["messages"]), state["messages"])
+        self.assertEqual(state["session"]["windowLevel"], {"window": 1500, "level": -600, "preset": "lung"})
+
+    # A DICOM folder is imported in the background (MPR from the source meanwhile), and the
+    # store is reused on the next open.
+    def test_background_import_and_reuse(self):
+        vw = self.viewer("import")
+        steps = [{"type": "dump-state", "path": vw.path("early.json"), "wait": 0},
+                 {"type": "wait-converged"},
+                 {"type": "screenshot", "path": vw.path("imported.png")}]
+        vw.run(HEAD, steps)
+        early = load_json(vw.path("early.json"))
+        self.assertEqual(early["dataset"]["state"], "importing")
+        state = load_json(vw.path("imported.png.json"))
+        self.assertEqual(state["dataset"]["state"], "ready")
+        self.assertFalse(state["dataset"]["reusedCache"])
+        self.assertTrue(os.path.exists(state["dataset"]["store"]))
+        self.assertTrue(state["dataset"]["store"].startswith(vw.path("cache")))
+        # Opened again, through a copy at another path: same content, same store.
+        copy = vw.path("head-copy")
+        shutil.copytree(HEAD, copy)
+        vw.run(copy, [{"type": "wait-converged"}, {"type": "dump-state", "path": vw.path("again.json")}])
+        again = load_json(vw.path("again.json"))
+        self.assertTrue(again["dataset"]["reusedCache"])
+        self.assertEqual(again["dataset"]["store"], state["dataset"]["store"])
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)

@@ -1,0 +1,289 @@
+#pragma once
+// octoray-view: the application. One GLFW window with an OpenGL 4.5 core context (the same
+// context the renderer's brick pool lives in), Dear ImGui for panels and overlays, and per
+// frame:
+//
+//   input (GLFW callbacks, or a script's steps)  -> Controller::handle  -> Session (the model)
+//   Session + Dataset                            -> View3d (GpuRenderer::renderFrame)
+//                                                -> MprView x 3 (StoreSlicer over the same cache)
+//   views' textures + overlays + panels          -> the window; screenshots read it back
+//
+// The session model (octoray/viewer/session.h) is all a saved session holds; everything here
+// is derived from it and from the dataset.
+
+#include <chrono>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "octoray/gpu/gl_context.h"
+#include "octoray/gpu/gpu_renderer.h"
+#include "octoray/viewer/dataset.h"
+#include "octoray/viewer/measure.h"
+#include "octoray/viewer/mpr.h"
+#include "octoray/viewer/presets.h"
+#include "octoray/viewer/script.h"
+#include "octoray/viewer/session.h"
+
+struct ImFont;
+
+namespace octoray::viewer {
+
+struct Rect {
+  int x = 0, y = 0, w = 0, h = 0;
+  bool contains(double px, double py) const {
+    return px >= x && py >= y && px < x + w && py < y + h;
+  }
+};
+
+struct AppOptions {
+  std::string data;             // what to open at start (may be empty)
+  std::string layout;           // four-up | one-up | 1+3
+  std::string preset;           // TF preset
+  std::string wlPreset;         // window/level preset
+  std::string mode;             // dvr | iso | mip
+  std::string camera, session, script, screenshot;
+  int frames = 0;               // run this many frames (then screenshot / exit)
+  bool exit = false;
+  int width = 1280, height = 800;
+  std::size_t poolMib = 512, cacheMib = 1024;
+  std::filesystem::path cacheDir;
+  std::string statsPath;        // per-frame figures (CSV) for measuring
+  // Feedback that prunes the 3D working set (octoray-render --visibility). Off by default:
+  // with ray feedback, thin structures seen at grazing angles after an interactive
+  // (half-resolution) drag can stay merged to a coarse level (issue 10's open defect).
+  std::string visibility = "none";
+  bool hidden = false;          // an invisible window (tests without a display use Xvfb anyway)
+};
+
+// The 3D view: the working-set renderer drawing into a texture each frame it has work.
+class View3d {
+ public:
+  View3d(const volume::StoreReader& store, const gpu::RendererConfig& config);
+  ~View3d();
+  // Renders when the inputs changed or the working set still refines. `interacting` asks for
+  // interactive quality (half resolution, twice the LOD target).
+  void update(const Session& session, int width, int height, bool interacting);
+  bool converged() const { return converged_; }
+  unsigned texture() const { return texture_; }
+  int textureWidth() const { return texWidth_; }
+  int textureHeight() const { return texHeight_; }
+  const gpu::FrameStats& stats() const { return stats_; }
+  double lastFrameMs() const { return lastFrameMs_; }
+  gpu::GpuRenderer& renderer() { return *renderer_; }
+  const gpu::Image& lastImage() const { return lastImage_; }
+  std::vector<std::string> takeErrors();
+  int64_t framesRendered() const { return frames_; }
+  uint64_t bytesRead() const { return bytesRead_; }
+
+ private:
+  std::unique_ptr<gpu::GpuRenderer> renderer_;
+  unsigned texture_ = 0;
+  int texWidth_ = 0, texHeight_ = 0;
+  std::string lastKey_, lastContent_;
+  int changedFrames_ = 0;
+  bool converged_ = false;
+  bool lastInteractive_ = false;
+  gpu::FrameStats stats_;
+  gpu::Image lastImage_;
+  double lastFrameMs_ = 0;
+  int64_t frames_ = 0;
+  uint64_t bytesRead_ = 0;
+  std::vector<std::string> errors_;
+};
+
+// One MPR view: its plane, the slice sampled from the bricks (or the import's preview), and
+// the grey texture the window/level maps it to.
+class MprView {
+ public:
+  explicit MprView(ViewId id);
+  ~MprView();
+  ViewId id() const { return id_; }
+  // Re-slices when the plane or slab changed, or when bricks arrived for an incomplete slice;
+  // re-maps grey levels when the window/level changed.
+  void update(const Session& session, const Grid& grid, int width, int height,
+              StoreSlicer* slicer, const PreviewVolume* preview, bool bricksArrived);
+  const MprPlane& plane() const { return plane_; }
+  const Slice& slice() const { return slice_; }
+  unsigned texture() const { return texture_; }
+  bool complete() const { return hasSlice_ && slice_.complete(); }
+  bool fromPreview() const { return fromPreview_; }
+  double lastSliceMs() const { return lastSliceMs_; }
+  // The HU value under a view pixel (NaN outside or not sampled).
+  double valueAt(int x, int y) const;
+
+ private:
+  ViewId id_;
+  MprPlane plane_;
+  Slice slice_;
+  bool hasSlice_ = false, fromPreview_ = false;
+  std::string sliceKey_;
+  WindowLevel mappedWl_{-1, 0};
+  unsigned texture_ = 0;
+  int texWidth_ = 0, texHeight_ = 0;
+  double lastSliceMs_ = 0;
+};
+
+enum class Tool { WindowLevel, Crosshair, Distance, Angle, Ellipse, Rectangle };
+const char* toolName(Tool t);
+Tool parseToolName(const std::string& name);
+
+class App;
+
+// Input handlers: events (real or replayed) to model changes.
+class Controller {
+ public:
+  explicit Controller(App& app) : app_(app) {}
+  void handle(const InputEvent& e);
+  bool dragging() const { return drag_.has_value(); }
+  bool dragging3d() const { return drag_ && drag_->view == ViewId::Volume; }
+  // A measurement being drawn (shown before it is finished).
+  const std::optional<Measurement>& pending() const { return pending_; }
+  Tool tool = Tool::WindowLevel;
+
+ private:
+  struct Drag {
+    ViewId view;
+    MouseButton button;
+    int mods;
+    double startX, startY, lastX, lastY;
+    WindowLevel startWl;
+    gpu::Camera startCamera;
+    MprPlane startPlane;
+    Mat4 startRotation;
+  };
+  void press(const InputEvent& e);
+  void move(const InputEvent& e);
+  void release(const InputEvent& e);
+  void wheel(const InputEvent& e);
+  void key(const InputEvent& e);
+  void scrollSlices(ViewId view, double steps);
+
+  App& app_;
+  std::optional<Drag> drag_;
+  std::optional<Measurement> pending_;
+  int anglePoints_ = 0;
+  ViewId activeView_ = ViewId::Axial;
+  double lastX_ = 0, lastY_ = 0;
+};
+
+class App {
+ public:
+  explicit App(const AppOptions& options);
+  ~App();
+  int run();
+
+  // ---- for the controller and the panels ----
+  Session session;
+  std::vector<WindowLevelPreset> wlPresets;
+  std::vector<std::string> tfPresetNames;  // ours, then Slicer's
+  std::vector<std::string> messages;       // errors shown in the window (each names a file)
+  bool showHelp = false, showFileDialog = false, showPanel = true;
+
+  Rect viewRect(ViewId v) const;
+  std::optional<ViewId> viewAt(double x, double y) const;
+  const Grid* grid() const;
+  const MprView* mprView(ViewId v) const;
+  void markInteraction();  // a control moved: interactive quality for a few frames
+  void open(const std::string& path);
+  void applyWindowLevelPreset(const WindowLevelPreset& p);
+  void applyWindowLevelKey(int key);
+  void selectTfPreset(const std::string& name);
+  void resetCamera();
+  void standardView(char letter);  // A P L R S I
+  void resetMprViews();
+  void setLayout(Layout layout, std::optional<ViewId> main = {});
+  void toggleMaximise(ViewId v);
+  void action(const std::string& name, const nlohmann::json& value);
+  void saveScreenshot(const std::string& path, std::optional<ViewId> view, bool patientInfo);
+  void saveSessionTo(const std::string& path);
+  void loadSessionFrom(const std::string& path);
+  void dumpState(const std::string& path);
+  void exportMovie(const std::string& folder, int frames, double degrees);
+  void export3dExr(const std::string& path);
+  RoiStats roiStatsOf(const Measurement& m);
+  Controller& controller() { return controller_; }
+  Dataset* dataset() { return dataset_.get(); }
+  View3d* view3d() { return view3d_.get(); }
+  StoreSlicer* slicer() { return slicer_.get(); }
+  const std::vector<int>& histogram() const { return histogram_; }
+  double histogramLo() const { return histLo_; }
+  double histogramHi() const { return histHi_; }
+  double fps() const { return fps_; }
+  ImFont* overlayFont() const { return overlayFont_; }
+  bool hidePatientInfo() const { return hidePatientInfo_; }
+  bool converged() const;
+  nlohmann::json stateJson();
+
+ private:
+  void frame();
+  void layoutViews();
+  void onDatasetReady();
+  void runScript();
+  std::optional<std::array<double, 2>> resolve(const ScriptPosition& p) const;
+  void queue(const InputEvent& e) { events_.push_back(e); }
+  void drawViews();
+  void drawPanels();     // panels.cpp
+  void drawStatusBar();  // panels.cpp
+  void drawHelp();       // panels.cpp
+  void drawFileDialog(); // panels.cpp
+  void drawTfEditor();   // tf_editor.cpp
+  void capture();
+  void computeHistogram();
+  void loadRecent();
+  void saveRecent();
+  void writeStats();
+
+  friend void installCallbacks(App& app);
+  friend class Controller;
+
+  AppOptions options_;
+  std::unique_ptr<gpu::WindowGlContext> context_;
+  std::unique_ptr<Dataset> dataset_;
+  std::unique_ptr<View3d> view3d_;
+  std::unique_ptr<StoreSlicer> slicer_;
+  std::array<std::unique_ptr<MprView>, 3> mpr_;
+  std::optional<Grid> grid_;
+  Controller controller_{*this};
+  std::deque<InputEvent> events_;
+  std::array<Rect, kViewCount> rects_;
+  Rect viewArea_;
+  int fbWidth_ = 0, fbHeight_ = 0;
+  std::vector<int> histogram_;
+  double histLo_ = -1024, histHi_ = 3071;
+  double fps_ = 0;
+  std::chrono::steady_clock::time_point lastFrame_;
+  int interactionFrames_ = 0;
+  ImFont* overlayFont_ = nullptr;
+  bool hidePatientInfo_ = false;
+  bool quit_ = false;
+  int64_t frameIndex_ = 0;
+  // script
+  std::vector<ScriptStep> script_;
+  std::size_t scriptStep_ = 0;
+  int scriptWait_ = 0;
+  int dragStep_ = -1;
+  std::chrono::steady_clock::time_point waitStart_;
+  bool waiting_ = false;
+  struct PendingShot {
+    std::string path;
+    std::optional<ViewId> view;
+    bool patientInfo = false;
+  };
+  std::optional<PendingShot> shot_;
+  std::vector<std::string> recent_;
+  std::string fileDialogPath_;
+  std::FILE* stats_ = nullptr;
+  std::chrono::steady_clock::time_point openedAt_;
+  double firstMprMs_ = -1, first3dMs_ = -1;
+  double frameMs_ = 0;
+  bool sessionLoaded_ = false;       // the session being opened brings its own camera/crosshair
+  bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
+  bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
+  bool finalShotTaken_ = false;
+  Layout restoreLayout_ = Layout::FourUp;
+};
+
+}  // namespace octoray::viewer

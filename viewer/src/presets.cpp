@@ -1,0 +1,83 @@
+#include "octoray/viewer/presets.h"
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <set>
+
+#include "octoray/core/error.h"
+
+namespace octoray::viewer {
+
+std::vector<WindowLevelPreset> loadWindowLevelPresets(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(file, "cannot open the window/level preset table");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(file, std::string("not JSON: ") + e.what());
+  }
+  if (!j.is_object() || j.value("format", "") != "octoray-window-level-presets" ||
+      !j.contains("presets") || !j["presets"].is_array()) {
+    throw Error(file, "expected {\"format\": \"octoray-window-level-presets\", \"presets\": [...]}");
+  }
+  std::vector<WindowLevelPreset> out;
+  std::set<int> keys;
+  std::set<std::string> names;
+  for (std::size_t i = 0; i < j["presets"].size(); ++i) {
+    const auto& p = j["presets"][i];
+    auto bad = [&](const std::string& what) {
+      return Error(file, fmt::format("presets[{}]: {}", i, what));
+    };
+    if (!p.is_object() || !p.contains("name") || !p["name"].is_string() || !p.contains("window") ||
+        !p["window"].is_number() || !p.contains("level") || !p["level"].is_number()) {
+      throw bad("expected name, window and level");
+    }
+    WindowLevelPreset w;
+    w.name = p["name"].get<std::string>();
+    w.window = p["window"].get<double>();
+    w.level = p["level"].get<double>();
+    w.key = p.value("key", 0);
+    w.source = p.value("source", "");
+    if (!std::isfinite(w.window) || w.window < 1 || !std::isfinite(w.level)) {
+      throw bad("window must be >= 1 HU and level finite");
+    }
+    if (w.key < 0 || w.key > 9) throw bad("key must be 1-9 (or 0 for none)");
+    if (w.key != 0 && !keys.insert(w.key).second) throw bad(fmt::format("key {} used twice", w.key));
+    if (!names.insert(w.name).second) throw bad(fmt::format("name \"{}\" used twice", w.name));
+    out.push_back(std::move(w));
+  }
+  if (out.empty()) throw Error(file, "no presets");
+  return out;
+}
+
+void saveWindowLevelPresets(const std::vector<WindowLevelPreset>& presets,
+                            const std::filesystem::path& path) {
+  nlohmann::ordered_json j;
+  j["format"] = "octoray-window-level-presets";
+  j["version"] = 1;
+  j["presets"] = nlohmann::ordered_json::array();
+  for (const auto& p : presets) {
+    j["presets"].push_back({{"key", p.key}, {"name", p.name}, {"window", p.window},
+                            {"level", p.level}, {"source", p.source}});
+  }
+  const std::filesystem::path temporary = path.string() + ".partial";
+  {
+    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+    out << j.dump(2) << "\n";
+    if (!out) throw Error(path.string(), "cannot write the preset table");
+  }
+  std::filesystem::rename(temporary, path);
+}
+
+std::filesystem::path defaultWindowLevelPresetsPath() {
+  if (const char* env = std::getenv("OCTORAY_WL_PRESETS"); env && *env) return env;
+  return std::filesystem::path(OCTORAY_VIEWER_SOURCE_DIR) / "presets" / "window-level.json";
+}
+
+}  // namespace octoray::viewer
