@@ -39,6 +39,8 @@ uniform vec2 uViewport;       // width, height in pixels
 uniform mat3 uQFromPatient;   // linear part, patient mm -> octree space
 uniform vec3 uQOffset;        // octree-space position of the patient origin
 uniform vec3 uDomainMax;      // the volume's domain in octree space: [0, uDomainMax]
+uniform vec3 uClipMin;        // the clip box in octree space (the domain when not clipping)
+uniform vec3 uClipMax;
 uniform mat3 uNormalFromIndex;  // patient gradient from a leaf-index gradient
 uniform int uLeafLevel;
 uniform int uMaxIterations;
@@ -198,17 +200,17 @@ void main() {
   outStats = stats;
 #endif
 
-  // Clip to the domain (clipOctreeDomain).
+  // Clip to the domain (clipOctreeDomain), or to the clip box inside it.
   float t0 = 0.0, t1 = kInfinity;
   vec3 inv;
   for (int a = 0; a < 3; ++a) {
     float d = dq[a];
     inv[a] = d != 0.0 ? 1.0 / d : 0.0;
     if (d == 0.0) {
-      if (qo[a] < 0.0 || qo[a] > uDomainMax[a]) return;
+      if (qo[a] < uClipMin[a] || qo[a] > uClipMax[a]) return;
       continue;
     }
-    float tn = (0.0 - qo[a]) * inv[a], tf = (uDomainMax[a] - qo[a]) * inv[a];
+    float tn = (uClipMin[a] - qo[a]) * inv[a], tf = (uClipMax[a] - qo[a]) * inv[a];
     t0 = max(t0, min(tn, tf));
     t1 = min(t1, max(tn, tf));
   }

@@ -354,6 +354,14 @@ void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
   if (!(options.lodPixels >= 0 && std::isfinite(options.lodPixels))) {
     throw Error("", fmt::format("--lod-pixels {} must be 0 or positive", options.lodPixels));
   }
+  if (options.clip.enabled) {
+    for (int a = 0; a < 3; ++a) {
+      const double lo = options.clip.lo[static_cast<std::size_t>(a)], hi = options.clip.hi[static_cast<std::size_t>(a)];
+      if (!(std::isfinite(lo) && std::isfinite(hi) && lo < hi)) {
+        throw Error("", fmt::format("clip box axis {}: [{}, {}] must be finite with lo < hi", a, lo, hi));
+      }
+    }
+  }
 }
 
 Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf,
@@ -406,6 +414,20 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
   glUniformMatrix3fv(prog.uniform("uQFromPatient"), 1, GL_TRUE, ru.qFromPatient.data());
   u3("uQOffset", ru.qOffset);
   u3("uDomainMax", ru.domainMax);
+  {
+    // The clip box in octree space (index + 0.5) / S, within the domain.
+    std::array<float, 3> clipMin{0, 0, 0}, clipMax = ru.domainMax;
+    if (options.clip.enabled) {
+      const auto& layout = im.store.layout();
+      const double cube = static_cast<double>(layout.brickSize()) * static_cast<double>(layout.levelScale(0));
+      for (std::size_t a = 0; a < 3; ++a) {
+        clipMin[a] = std::clamp(static_cast<float>((options.clip.lo[a] + 0.5) / cube), 0.0f, ru.domainMax[a]);
+        clipMax[a] = std::clamp(static_cast<float>((options.clip.hi[a] + 0.5) / cube), 0.0f, ru.domainMax[a]);
+      }
+    }
+    u3("uClipMin", clipMin);
+    u3("uClipMax", clipMax);
+  }
   const Mat4 patientFromIndex = im.store.patientFromIndex();
   const Mat4 indexFromPatient = patientFromIndex.inverseAffine();
   std::array<std::array<double, 3>, 3> normalFromIndex{};

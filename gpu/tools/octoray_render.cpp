@@ -9,7 +9,7 @@
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
-//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE]] | --reference
+//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]] | --reference
 // --path renders a camera path one frame each, with the working set carried across frames
 // and bricks streamed in the background (the interaction benchmark; camera_path.h).
 
@@ -63,7 +63,7 @@ struct Arguments {
   std::size_t poolMib = 1024, cacheMib = 2048, uploadMibPerFrame = 64;
   std::string visibility = "rays", cameraPath, statsOut;
   int visibilityThreshold = 4;
-  std::string boundary, silhouette;
+  std::string boundary, silhouette, clip;
 };
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
@@ -453,6 +453,16 @@ int runGpu(const Arguments& a) {
                                                                     : gpu::RaycastOptions::Shading::FromTransferFunction;
   options.gradientOpacity = shared.gradientOpacity;
   options.boundary = parseEnhancement(a.boundary, "--boundary");
+  if (!a.clip.empty()) {
+    double v[6];
+    char extra = 0;
+    if (std::sscanf(a.clip.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &extra) != 6) {
+      throw Error("", fmt::format("--clip \"{}\": expected I0,J0,K0,I1,J1,K1 (index space)", a.clip));
+    }
+    options.clip.enabled = true;
+    options.clip.lo = {v[0], v[1], v[2]};
+    options.clip.hi = {v[3], v[4], v[5]};
+  }
   options.silhouette = parseEnhancement(a.silhouette, "--silhouette");
   if (!(a.lodPixels >= 0 && std::isfinite(a.lodPixels))) {
     throw Error("", fmt::format("--lod-pixels {}: must be >= 0", a.lodPixels));
@@ -639,6 +649,7 @@ int main(int argc, char** argv) {
   app.add_flag("--gradient-pool", a.gradientPool,
                "GPU: shade from the store's precomputed gradients (import with --gradients)");
   app.add_option("--boundary", a.boundary, "GPU: boundary enhancement KC,KS,KE");
+  app.add_option("--clip", a.clip, "GPU: clip box I0,J0,K0,I1,J1,K1 in index space (voxel centres at integers)");
   app.add_option("--mip", a.mip,
                  "GPU, --mode mip: exact (the interpolant's maximum along the ray, as the "
                  "reference) or sampled (its maximum at the step's samples; faster)")
@@ -665,7 +676,7 @@ int main(int argc, char** argv) {
     }
     if (a.reference) {
       for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
-                                  "--gradient-pool", "--boundary", "--silhouette",
+                                  "--gradient-pool", "--boundary", "--silhouette", "--clip",
                                   "--no-cell-skipping", "--mip", "--cache-mib",
                                   "--upload-mib-per-frame", "--visibility",
                                   "--visibility-threshold", "--path", "--stats"}) {

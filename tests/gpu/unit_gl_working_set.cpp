@@ -488,3 +488,57 @@ TEST_F(WorkingSetTest, PoolUsesItsWholeBudgetNotWholeLayers) {
 
 }  // namespace
 }  // namespace octoray::gpu
+
+namespace octoray::gpu {
+namespace {
+
+// The clip box cuts each ray to its chord inside the box: the whole domain changes nothing;
+// half the columns leaves an orthographic MIP unchanged where rays stay in the kept half and
+// empty where they run through the removed one.
+TEST_F(WorkingSetTest, ClipBoxCutsTheRaysToTheBox) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction bone = transfer::findPreset("bone");
+  OrbitParameters o;
+  o.projection = Projection::Orthographic;
+  o.width = o.height = 96;
+  const Camera camera = orbitCamera(domainOf(store), o);  // anterior: rays along +Y
+  GpuRenderer renderer(store);
+  RaycastOptions options;
+  options.lodPixels = 0;
+  const Frame full = renderer.render(camera, bone, options);
+  options.clip.enabled = true;
+  options.clip.lo = {-0.5, -0.5, -0.5};
+  options.clip.hi = {127.5, 119.5, 95.5};
+  const Frame whole = renderer.render(camera, bone, options);
+  EXPECT_EQ(compare(full.image, whole.image).maxAbsError, 0.0);
+
+  options.mode = RaycastMode::Mip;
+  options.clip.enabled = false;
+  const Frame mip = renderer.render(camera, bone, options);
+  options.clip.enabled = true;
+  options.clip.hi[0] = 63.5;
+  const Frame half = renderer.render(camera, bone, options);
+  const Mat4 indexFromPatient = store.patientFromIndex().inverseAffine();
+  int kept = 0, removed = 0;
+  for (int y = 0; y < 96; ++y) {
+    for (int x = 0; x < 96; ++x) {
+      const double i = indexFromPatient.transformPoint(camera.ray(x + 0.5, y + 0.5).origin).x;
+      const std::size_t p = static_cast<std::size_t>(y * 96 + x);
+      if (i < 62.5 && !std::isnan(mip.value[p])) {
+        EXPECT_EQ(half.value[p], mip.value[p]) << x << "," << y;
+        ++kept;
+      } else if (i > 64.5 && !std::isnan(mip.value[p])) {
+        EXPECT_TRUE(std::isnan(half.value[p])) << x << "," << y << " i " << i;
+        ++removed;
+      }
+    }
+  }
+  EXPECT_GT(kept, 1000);
+  EXPECT_GT(removed, 1000);
+  options.clip.hi[0] = -1;  // lo > hi
+  EXPECT_THROW(renderer.render(camera, bone, options), Error);
+}
+
+}  // namespace
+}  // namespace octoray::gpu

@@ -209,6 +209,44 @@ class ViewerGui(unittest.TestCase):
         value = psnr(got, want)
         self.assertGreaterEqual(value, 40.0, f"3D view vs octoray-render: PSNR {value:.1f} dB")
 
+    # The crop box: its face dragged by a handle in the axial view crops the 3D view, which
+    # still equals octoray-render with the same box.
+    def test_clip_box_handles(self):
+        vw = self.viewer("clip")
+        k = 70
+        edge, inner = self.head.patient(511.5, 256, k), self.head.patient(350, 256, k)
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "action", "name": "crosshair", "value": list(self.head.patient(256, 256, k))},
+            {"type": "action", "name": "standard-view", "value": "S"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("uncut.png")},
+            {"type": "action", "name": "clip", "value": True},
+            {"type": "drag", "from": {"view": "axial", "patient": list(edge)},
+             "to": {"view": "axial", "patient": list(inner)}, "steps": 4},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("cut.png")},
+        ]
+        vw.run(self.head_store, steps, extra=["--preset", "bone"])
+        state = load_json(vw.path("cut.png.json"))
+        clip = state["session"]["clip"]
+        self.assertTrue(clip["enabled"])
+        self.assertAlmostEqual(clip["hi"][0], 350.0, places=6)
+        self.assertEqual(clip["lo"], [-0.5, -0.5, -0.5])
+        self.assertEqual(clip["hi"][1:], [511.5, 139.5])
+        camera = state["views"]["3d"]["camera"]
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        box = ",".join(str(v) for v in clip["lo"] + clip["hi"])
+        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
+                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "bone", "--clip", box,
+                 "-o", vw.path("render.png")])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        got, want = load_png(vw.path("cut.png")), load_png(vw.path("render.png"))
+        self.assertGreaterEqual(psnr(got, want), 40.0)
+        uncut = load_png(vw.path("uncut.png"))
+        self.assertLess(psnr(got, uncut), 30.0, "the crop box did not change the 3D view")
+
     # (c) a scripted W/L drag: right widens the window, up raises the level, by W/200 HU/pixel.
     def test_window_level_drag(self):
         vw = self.viewer("wl")

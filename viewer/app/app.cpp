@@ -290,6 +290,7 @@ void App::onDatasetReady() {
   if (!sessionLoaded_) {
     if (!crosshairSet_) session.crosshair = grid_->centre();
     resetCamera();
+    resetClip();
   }
   crosshairSet_ = true;
   sessionLoaded_ = false;
@@ -411,6 +412,70 @@ void App::standardView(char letter) {
 }
 
 void App::resetMprViews() { session.mprViews = {}; }
+
+void App::resetClip() {
+  if (!grid_) return;
+  session.clip.lo = {-0.5, -0.5, -0.5};
+  session.clip.hi = {static_cast<double>(grid_->dims[0]) - 0.5, static_cast<double>(grid_->dims[1]) - 0.5,
+                     static_cast<double>(grid_->dims[2]) - 0.5};
+}
+
+std::optional<std::pair<int, int>> App::clipFaceAt(ViewId v, double x, double y) const {
+  const MprView* mv = mprView(v);
+  if (!session.clip.enabled || !grid_ || !mv) return std::nullopt;
+  const Rect r = viewRect(v);
+  const MprPlane& plane = mv->plane();
+  const Vec3 q = grid_->indexFromPatient.transformPoint(plane.at(x - r.x, y - r.y));
+  const double grabMm = 6.0 * plane.mmPerPixel;
+  std::optional<std::pair<int, int>> best;
+  double bestMm = grabMm;
+  for (int a = 0; a < 3; ++a) {
+    const double spacing = length(grid_->patientFromIndex.column(a));
+    bool within = true;
+    for (int b = 0; b < 3; ++b) {
+      if (b == a) continue;
+      const double tol = grabMm / length(grid_->patientFromIndex.column(b));
+      if (q[b] < session.clip.lo[b] - tol || q[b] > session.clip.hi[b] + tol) within = false;
+    }
+    if (!within) continue;
+    for (int side = 0; side < 2; ++side) {
+      const double bound = side == 0 ? session.clip.lo[a] : session.clip.hi[a];
+      const double mm = std::abs(q[a] - bound) * spacing;
+      if (mm < bestMm) {
+        bestMm = mm;
+        best = std::make_pair(a, side);
+      }
+    }
+  }
+  return best;
+}
+
+std::vector<Vec3> App::clipSection(const MprPlane& plane) const {
+  std::vector<Vec3> points;
+  if (!grid_) return points;
+  const ClipBox& c = session.clip;
+  auto corner = [&](int bits) {
+    return grid_->patientFromIndex.transformPoint({(bits & 1) ? c.hi.x : c.lo.x, (bits & 2) ? c.hi.y : c.lo.y,
+                                                   (bits & 4) ? c.hi.z : c.lo.z});
+  };
+  for (int from = 0; from < 8; ++from) {
+    for (int axis = 0; axis < 3; ++axis) {
+      if (from & (1 << axis)) continue;
+      const Vec3 a = corner(from), b = corner(from | (1 << axis));
+      const double da = dot(a - plane.origin, plane.normal), db = dot(b - plane.origin, plane.normal);
+      if ((da < 0) == (db < 0) || da == db) continue;
+      points.push_back(a + (da / (da - db)) * (b - a));
+    }
+  }
+  if (points.size() < 3) return {};
+  Vec3 centre;
+  for (const Vec3& p : points) centre = centre + (1.0 / static_cast<double>(points.size())) * p;
+  std::sort(points.begin(), points.end(), [&](const Vec3& p, const Vec3& q) {
+    return std::atan2(dot(p - centre, plane.down), dot(p - centre, plane.right)) <
+           std::atan2(dot(q - centre, plane.down), dot(q - centre, plane.right));
+  });
+  return points;
+}
 
 void App::setLayout(Layout layout, std::optional<ViewId> main) {
   session.layout = layout;
@@ -657,6 +722,16 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   else if (name == "slab") session.slab = parseSlabMode(text());
   else if (name == "slab-mm") session.slabMm = number();
   else if (name == "overlays") session.overlays = value.get<bool>();
+  else if (name == "clip") {
+    // true / false, or {"lo": [i, j, k], "hi": [i, j, k]} in index space (enables it).
+    if (value.is_boolean()) {
+      session.clip.enabled = value.get<bool>();
+    } else {
+      const auto lo = value.at("lo"), hi = value.at("hi");
+      session.clip = {true, {lo[0].get<double>(), lo[1].get<double>(), lo[2].get<double>()},
+                      {hi[0].get<double>(), hi[1].get<double>(), hi[2].get<double>()}};
+    }
+  }
   else if (name == "patient-info") session.patientInfo = value.get<bool>();
   else if (name == "interactive-quality") session.interactiveQuality = value.get<bool>();
   else if (name == "crosshair") {
@@ -838,6 +913,7 @@ void App::exportMovie(const std::string& folder, int frames, double degrees) {
   o.mode = session.mode;
   o.isoValue = session.isoValue;
   o.lodPixels = session.lodPixels;
+  o.clip = clipOptions(session.clip);
   for (int i = 0; i < frames; ++i) {
     const gpu::Camera c = gpu::turnAboutCentre(camera, grid_->centre(), degrees * i / frames);
     const gpu::Frame f = view3d_->renderer().render(c, session.tf, o);
@@ -861,6 +937,7 @@ void App::export3dExr(const std::string& path) {
   o.mode = session.mode;
   o.isoValue = session.isoValue;
   o.lodPixels = session.lodPixels;
+  o.clip = clipOptions(session.clip);
   gpu::writeExr(view3d_->renderer().render(c, session.tf, o).image, path);
 }
 

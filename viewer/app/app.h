@@ -58,6 +58,8 @@ struct AppOptions {
   bool hidden = false;          // an invisible window (tests without a display use Xvfb anyway)
 };
 
+gpu::RaycastOptions::ClipBox clipOptions(const ClipBox& c);
+
 // The 3D view: the working-set renderer drawing into a texture each frame it has work.
 class View3d {
  public:
@@ -153,6 +155,7 @@ class Controller {
     gpu::Camera startCamera;
     MprPlane startPlane;
     Mat4 startRotation;
+    std::optional<std::pair<int, int>> clipFace;  // dragging a clip-box face (axis, side)
   };
   void press(const InputEvent& e);
   void move(const InputEvent& e);
@@ -194,6 +197,11 @@ class App {
   void resetCamera();
   void standardView(char letter);  // A P L R S I
   void resetMprViews();
+  void resetClip();
+  // The clip-box face (axis, 0 = lo / 1 = hi) under a view pixel, when close enough to grab.
+  std::optional<std::pair<int, int>> clipFaceAt(ViewId v, double x, double y) const;
+  // The clip box's cross-section with an MPR view's plane (patient points, in order).
+  std::vector<Vec3> clipSection(const MprPlane& plane) const;
   void setLayout(Layout layout, std::optional<ViewId> main = {});
   void toggleMaximise(ViewId v);
   void action(const std::string& name, const nlohmann::json& value);

@@ -94,6 +94,12 @@ void Controller::press(const InputEvent& e) {
     d.startPlane = mv->plane();
     const Rect r = app_.viewRect(*view);
     const Vec3 p = d.startPlane.at(e.x - r.x, e.y - r.y);
+    d.clipFace = e.button == MouseButton::Left && !(e.mods & (kCtrl | kShift)) ? app_.clipFaceAt(*view, e.x, e.y)
+                                                                              : std::nullopt;
+    if (d.clipFace) {
+      drag_ = d;  // a clip-box handle takes the drag before the tool
+      return;
+    }
     if (e.button == MouseButton::Left && !(e.mods & kCtrl)) {
       const Tool t = (e.mods & kShift) ? Tool::Crosshair : tool;
       if (t == Tool::Crosshair) {
@@ -189,6 +195,18 @@ void Controller::move(const InputEvent& e) {
   }
   // Left button.
   const Vec3 p = plane.at(e.x - r.x, e.y - r.y);
+  if (d.clipFace && app_.grid()) {
+    // The grabbed face follows the cursor along its index axis, staying a voxel from the other.
+    const auto [axis, side] = *d.clipFace;
+    const Grid& grid = *app_.grid();
+    const double q = grid.indexFromPatient.transformPoint(p)[axis];
+    const double lo = -0.5, hi = static_cast<double>(grid.dims[static_cast<std::size_t>(axis)]) - 0.5;
+    ClipBox& c = s.clip;
+    double* bounds[2][3] = {{&c.lo.x, &c.lo.y, &c.lo.z}, {&c.hi.x, &c.hi.y, &c.hi.z}};
+    if (side == 0) *bounds[0][axis] = std::clamp(q, lo, *bounds[1][axis] - 1.0);
+    else *bounds[1][axis] = std::clamp(q, *bounds[0][axis] + 1.0, hi);
+    return;
+  }
   if (d.mods & kCtrl) {
     // Oblique: the other planes turn about this view's normal by the angle the cursor swept
     // about the crosshair.

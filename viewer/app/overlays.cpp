@@ -210,6 +210,20 @@ void App::drawViews() {
           outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, probe).x - 8, a.y + 6), dim, probe);
         }
       }
+      if (session.clip.enabled) {
+        // The crop box's cross-section, with a handle at the middle of each side.
+        const auto section = clipSection(p);
+        std::vector<ImVec2> pts;
+        for (const Vec3& q : section) pts.push_back(toScreen(q));
+        const ImU32 cc = IM_COL32(255, 150, 40, 230);
+        if (pts.size() >= 3) {
+          dl->AddPolyline(pts.data(), static_cast<int>(pts.size()), cc, ImDrawFlags_Closed, 1.5f);
+          for (std::size_t i = 0; i < pts.size(); ++i) {
+            const ImVec2 m((pts[i].x + pts[(i + 1) % pts.size()].x) * 0.5f, (pts[i].y + pts[(i + 1) % pts.size()].y) * 0.5f);
+            dl->AddRectFilled(ImVec2(m.x - 3.5f, m.y - 3.5f), ImVec2(m.x + 3.5f, m.y + 3.5f), cc);
+          }
+        }
+      }
       if (session.patientInfo && !hidePatientInfo_ && dataset_) {
         const VolumeInfo info = dataset_->info();
         const std::string who = fmt::format("{}\n{}  {}", info.description, info.modality,
@@ -250,10 +264,19 @@ void App::drawViews() {
           }
           if (finished) {
             const RoiStats st = roiStatsOf(m);
-            label = describe(m, &st);
+            label = st.samples == 0 ? describe(m, &st)
+                                    : fmt::format("mean {:.1f} SD {:.1f} HU\nmin {:.0f} max {:.0f}\n{:.1f} mm\u00b2",
+                                                  st.mean, st.sd, st.min, st.max, st.areaMm2);
           }
         }
-        if (!label.empty()) outlinedText(dl, font, fs * 0.9f, ImVec2(pts.back().x + 8, pts.back().y + 4), mc, label);
+        if (!label.empty()) {
+          // Beside the last point, kept inside the view.
+          const ImVec2 size = textSize(font, fs * 0.9f, label);
+          float lx = pts.back().x + 8, ly = pts.back().y + 4;
+          if (lx + size.x > b.x - 4) lx = std::max(a.x + 4, pts.back().x - 8 - size.x);
+          if (ly + size.y > b.y - 4) ly = std::max(a.y + 4, pts.back().y - 4 - size.y);
+          outlinedText(dl, font, fs * 0.9f, ImVec2(lx, ly), mc, label);
+        }
       };
       for (const Measurement& m : session.measurements) drawMeasurement(m, true);
       if (controller_.pending()) drawMeasurement(*controller_.pending(), false);

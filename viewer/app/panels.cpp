@@ -205,6 +205,23 @@ void App::drawPanels() {
       ImGui::SameLine();
     }
     if (ImGui::Button("reset")) resetCamera();
+    ImGui::Checkbox("clip box", &session.clip.enabled);
+    if (session.clip.enabled && grid_) {
+      ImGui::SameLine();
+      if (ImGui::SmallButton("whole volume")) resetClip();
+      const char* axes[] = {"i (columns)", "j (rows)", "k (slices)"};
+      double* lo[] = {&session.clip.lo.x, &session.clip.lo.y, &session.clip.lo.z};
+      double* hi[] = {&session.clip.hi.x, &session.clip.hi.y, &session.clip.hi.z};
+      for (int a = 0; a < 3; ++a) {
+        float range[2] = {static_cast<float>(*lo[a]), static_cast<float>(*hi[a])};
+        const float top = static_cast<float>(grid_->dims[static_cast<std::size_t>(a)]) - 0.5f;
+        if (ImGui::DragFloatRange2(axes[a], &range[0], &range[1], 1.0f, -0.5f, top, "%.0f", "%.0f")) {
+          *lo[a] = std::clamp(static_cast<double>(range[0]), -0.5, static_cast<double>(top) - 1);
+          *hi[a] = std::clamp(static_cast<double>(range[1]), *lo[a] + 1, static_cast<double>(top));
+          markInteraction();
+        }
+      }
+    }
     drawTfEditor();
   }
 

@@ -47,6 +47,14 @@ uint8_t displayByte(float c) {
 
 }  // namespace
 
+gpu::RaycastOptions::ClipBox clipOptions(const ClipBox& c) {
+  gpu::RaycastOptions::ClipBox out;
+  out.enabled = c.enabled;
+  out.lo = {c.lo.x, c.lo.y, c.lo.z};
+  out.hi = {c.hi.x, c.hi.y, c.hi.z};
+  return out;
+}
+
 // ---- View3d --------------------------------------------------------------------------------
 
 View3d::View3d(const volume::StoreReader& store, const gpu::RendererConfig& config)
@@ -63,9 +71,10 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   // What the picture shows (camera, TF, mode, quality) apart from interactive quality; a
   // change while the user is interacting renders at interactive quality until it settles.
   const std::string content = fmt::format(
-      "{}|{}|{}|{}|{}|{}|{}|{}|{}|{}", gpu::cameraToJson(s.camera).dump(),
+      "{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{},{},{},{},{},{}", gpu::cameraToJson(s.camera).dump(),
       transfer::transferFunctionToJsonText(s.tf), modeName(s.mode), s.isoValue, s.lodPixels,
-      s.stepFactor, s.earlyTermination, s.shading, width, height);
+      s.stepFactor, s.earlyTermination, s.shading, width, height, s.clip.enabled, s.clip.lo.x,
+      s.clip.lo.y, s.clip.lo.z, s.clip.hi.x, s.clip.hi.y, s.clip.hi.z);
   if (content != lastContent_) {
     lastContent_ = content;
     changedFrames_ = 3;
@@ -84,6 +93,7 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   o.earlyTermination = s.earlyTermination;
   o.shading = s.shading ? gpu::RaycastOptions::Shading::FromTransferFunction
                         : gpu::RaycastOptions::Shading::Off;
+  o.clip = clipOptions(s.clip);
   const std::string key = fmt::format("{}|{}", content, interactive);
   if (key != lastKey_) {
     converged_ = false;

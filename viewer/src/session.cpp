@@ -143,6 +143,7 @@ json sessionToJson(const Session& s) {
                   {"earlyTermination", s.earlyTermination},
                   {"shading", s.shading},
                   {"interactive", s.interactiveQuality}};
+  j["clip"] = {{"enabled", s.clip.enabled}, {"lo", vec(s.clip.lo)}, {"hi", vec(s.clip.hi)}};
   j["windowLevel"] = {{"window", s.wl.window}, {"level", s.wl.level}, {"preset", s.wlPreset}};
   j["crosshair"] = vec(s.crosshair);
   json rotation = json::array();
@@ -182,7 +183,7 @@ Session sessionFromJson(const json& j, const std::string& path) {
   if (!j.contains("version") || j["version"] != kVersion) r.fail("version", "expected 1");
   rejectUnknown(j,
                 {"format", "version", "source", "layout", "mainView", "camera", "preset",
-                 "transferFunction", "mode", "isoValue", "quality", "windowLevel", "crosshair",
+                 "transferFunction", "mode", "isoValue", "quality", "clip", "windowLevel", "crosshair",
                  "mprRotation", "slab", "mprViews", "measurements", "overlays"},
                 r, "");
   Session s;
@@ -209,6 +210,14 @@ Session sessionFromJson(const json& j, const std::string& path) {
   if (s.earlyTermination > 1) r.fail("quality.earlyTermination", "expected (0, 1]");
   s.shading = r.boolean(q, "shading", "quality.shading");
   s.interactiveQuality = r.boolean(q, "interactive", "quality.interactive");
+  const json& clip = r.at(j, "clip", "clip");
+  rejectUnknown(clip, {"enabled", "lo", "hi"}, r, "clip");
+  s.clip.enabled = r.boolean(clip, "enabled", "clip.enabled");
+  s.clip.lo = r.vec3(r.at(clip, "lo", "clip.lo"), "clip.lo");
+  s.clip.hi = r.vec3(r.at(clip, "hi", "clip.hi"), "clip.hi");
+  if (!(s.clip.lo.x < s.clip.hi.x && s.clip.lo.y < s.clip.hi.y && s.clip.lo.z < s.clip.hi.z)) {
+    r.fail("clip", "lo must be below hi on every axis");
+  }
   const json& wl = r.at(j, "windowLevel", "windowLevel");
   rejectUnknown(wl, {"window", "level", "preset"}, r, "windowLevel");
   s.wl.window = r.positive(wl, "window", "windowLevel.window");

@@ -64,6 +64,13 @@ struct RaycastOptions {
   // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
   // (exact: the picture is bit for bit the same; off only to measure what it saves).
   bool cellSkipping = true;
+  // A clipping box in the volume's index space (voxel centres at integers, the domain is
+  // [-0.5, dim - 0.5] per axis): rays are cut to the chord inside the box, whose steps are
+  // then cut as the whole chord's are. The viewer's crop box.
+  struct ClipBox {
+    bool enabled = false;
+    std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  } clip;
 };
 
 struct FrameStats {

@@ -68,6 +68,13 @@ struct Measurement {
   Vec3 right{1, 0, 0}, down{0, 1, 0};
 };
 
+// The 3D view's crop box, in the volume's index space (voxel centres at integers; the whole
+// domain is [-0.5, dim - 0.5] per axis). Edited with handles in the MPR views.
+struct ClipBox {
+  bool enabled = false;
+  Vec3 lo{-0.5, -0.5, -0.5}, hi{0.5, 0.5, 0.5};
+};
+
 struct Session {
   std::string source;  // what was opened (a store, a DICOM folder, a volume file)
   Layout layout = Layout::FourUp;
@@ -83,6 +90,7 @@ struct Session {
   double earlyTermination = 0.99;
   bool shading = true;                 // DVR: Phong shading when the TF asks for it
   bool interactiveQuality = true;      // half resolution and coarser LOD while moving
+  ClipBox clip;
   // MPR
   WindowLevel wl;
   std::string wlPreset = "brain";
