@@ -991,12 +991,11 @@ void App::frame() {
   const bool idle = script_.empty() && converged() && events_.empty() && options_.frames == 0;
   if (idle) glfwWaitEventsTimeout(0.25);
   else glfwPollEvents();
-  if (!script_.empty()) runScript();
-
   ImGui_ImplOpenGL3_NewFrame();
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
   layoutViews();
+  if (!script_.empty()) runScript();  // after the layout: positions in views resolve
 
   while (!events_.empty()) {
     const InputEvent e = events_.front();
