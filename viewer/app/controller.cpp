@@ -87,7 +87,7 @@ void Controller::press(const InputEvent& e) {
     return;
   }
   Session& s = app_.session;
-  Drag d{*view, e.button, e.mods, e.x, e.y, e.x, e.y, s.wl, s.camera, {}, s.mprRotation};
+  Drag d{*view, e.button, e.mods, e.x, e.y, e.x, e.y, s.wl, s.camera, {}, s.mprRotation, std::nullopt};
   if (isMpr(*view)) {
     const MprView* mv = app_.mprView(*view);
     if (!mv) return;

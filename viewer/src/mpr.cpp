@@ -236,9 +236,9 @@ StoreSlicer::Resolved StoreSlicer::resolve(int64_t id, int level, const volume::
     if (missing) frameRequests_[id] = static_cast<float>(level);
     int64_t ancestor = layout.parent(id);
     while (ancestor > 0) {
-      if (auto b = cache_.find(ancestor)) {
+      if (auto found = cache_.find(ancestor)) {
         const auto key = layout.nodeKey(ancestor);
-        r = {std::move(b), key.level, key.brick};
+        r = {std::move(found), key.level, key.brick};
         break;
       }
       ancestor = layout.parent(ancestor);
