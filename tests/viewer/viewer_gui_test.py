@@ -247,6 +247,43 @@ class ViewerGui(unittest.TestCase):
         uncut = load_png(vw.path("uncut.png"))
         self.assertLess(psnr(got, uncut), 30.0, "the crop box did not change the 3D view")
 
+    # Double-click maximises a view and restores the layout; 1+3; a rotation movie and the 3D
+    # view as EXR.
+    def test_layouts_and_outputs(self):
+        vw = self.viewer("outputs")
+        steps = [
+            {"type": "click", "at": {"view": "coronal", "fraction": [0.5, 0.5]}, "double": True},
+            {"type": "dump-state", "path": vw.path("max.json")},
+            {"type": "click", "at": {"view": "coronal", "fraction": [0.5, 0.5]}, "double": True},
+            {"type": "dump-state", "path": vw.path("restored.json")},
+            {"type": "action", "name": "layout", "value": "1+3"},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("one-plus-three.json")},
+            {"type": "action", "name": "movie", "value": {"folder": vw.path("movie"), "frames": 4, "degrees": 90}},
+            {"type": "action", "name": "exr", "value": vw.path("view3d.exr")},
+        ]
+        vw.run(self.head_store, steps)
+        maximised = load_json(vw.path("max.json"))
+        self.assertEqual(maximised["session"]["layout"], "one-up")
+        self.assertEqual(maximised["session"]["mainView"], "coronal")
+        self.assertEqual(maximised["views"]["coronal"]["rect"][2], 940)  # the whole view area
+        self.assertEqual(maximised["views"]["axial"]["rect"][2], 0)
+        self.assertEqual(load_json(vw.path("restored.json"))["session"]["layout"], "four-up")
+        state = load_json(vw.path("one-plus-three.json"))
+        views, main = state["views"], state["session"]["mainView"]
+        self.assertEqual(main, "coronal")  # the last maximised view leads
+        big = views[main]["rect"]
+        for other in ("axial", "3d", "sagittal"):
+            r = views[other]["rect"]
+            self.assertGreater(big[2] * big[3], 3 * r[2] * r[3])
+            self.assertGreaterEqual(r[0], big[0] + big[2])  # stacked to the right
+        frames = [load_png(os.path.join(vw.path("movie"), f"frame_{i:04d}.png")) for i in range(4)]
+        for a, b in zip(frames, frames[1:]):
+            self.assertGreater(float(a.std()), 5.0)
+            self.assertLess(psnr(a, b), 35.0, "consecutive movie frames should show a turned head")
+        with open(vw.path("view3d.exr"), "rb") as f:
+            self.assertEqual(f.read(4), b"\x76\x2f\x31\x01")  # OpenEXR magic
+
     # (c) a scripted W/L drag: right widens the window, up raises the level, by W/200 HU/pixel.
     def test_window_level_drag(self):
         vw = self.viewer("wl")
