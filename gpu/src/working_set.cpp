@@ -312,6 +312,7 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
     viewDigest_ = digest;
     viewChangedFrame_ = frame_;
   }
+  staleFeedback_ = config_.visibility != Visibility::None && lastFeedbackFrame_ < viewChangedFrame_;
   context_ = &context;
 
   // What the loader finished and what failed since the last frame.
@@ -603,7 +604,7 @@ void WorkingSet::applyFeedback(std::span<const LeafFeedback> feedback) {
 bool WorkingSet::settled() const {
   return stats_.split == 0 && stats_.merged == 0 && stats_.fetched == 0 && stats_.waitingForData == 0 &&
          stats_.stoppedByBudget == 0 && pendingMerges_ == 0 && stats_.hiddenWaiting == 0 &&
-         (config_.visibility == Visibility::None || stats_.unknownLeaves == 0);
+         (config_.visibility == Visibility::None || (stats_.unknownLeaves == 0 && !staleFeedback_));
 }
 
 std::vector<volume::LoadError> WorkingSet::takeErrors() { return std::exchange(errors_, {}); }

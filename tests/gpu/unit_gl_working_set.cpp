@@ -542,3 +542,48 @@ TEST_F(WorkingSetTest, ClipBoxCutsTheRaysToTheBox) {
 
 }  // namespace
 }  // namespace octoray::gpu
+
+namespace octoray::gpu {
+namespace {
+
+// The viewer's interactive quality: frames at half resolution and twice the LOD target while
+// the camera turns, then the still camera at full quality. With ray feedback the converged
+// cut must be the one a fresh renderer reaches for that camera (no visible leaf left merged
+// because it was unseen in the coarse frames).
+TEST_F(WorkingSetTest, ConvergesToTheSameCutAfterInteractiveFrames) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction bone = transfer::findPreset("bone");
+  RendererConfig config;
+  config.visibility = Visibility::Rays;
+  RaycastOptions still;
+  const Camera last = orbit(store, 40, 10, 1.3, 160);
+  GpuRenderer fresh(store, config);
+  const Frame reference = fresh.render(last, bone, still);
+
+  GpuRenderer renderer(store, config);
+  renderer.render(orbit(store, 0, 10, 1.3, 160), bone, still);  // converged before the drag
+  RaycastOptions moving;
+  moving.lodPixels = 2;
+  for (int f = 1; f <= 3; ++f) {
+    Camera c = orbit(store, f * 40.0 / 3, 10, 1.3, 80);
+    renderer.renderFrame(c, bone, moving);
+  }
+  // The drag pauses: the half-resolution picture settles (no ray wants finer data at LOD 2).
+  for (int f = 0; f < 6; ++f) renderer.renderFrame(orbit(store, 40, 10, 1.3, 80), bone, moving);
+  Frame converged;
+  for (int f = 0; f < 200; ++f) {
+    converged = renderer.renderFrame(last, bone, still);
+    // The viewer's test for a converged picture.
+    if (renderer.workingSet().settled() && converged.stats.workingSet.uploaded == 0 &&
+        converged.stats.workingSet.fetched == 0) {
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_EQ(converged.stats.workingSet.leaves, reference.stats.workingSet.leaves);
+  EXPECT_GT(compare(converged.image, reference.image).psnrDb, 50.0);
+}
+
+}  // namespace
+}  // namespace octoray::gpu

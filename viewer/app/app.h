@@ -51,10 +51,9 @@ struct AppOptions {
   std::size_t poolMib = 512, cacheMib = 1024;
   std::filesystem::path cacheDir;
   std::string statsPath;        // per-frame figures (CSV) for measuring
-  // Feedback that prunes the 3D working set (octoray-render --visibility). Off by default:
-  // with ray feedback, thin structures seen at grazing angles after an interactive
-  // (half-resolution) drag can stay merged to a coarse level (issue 10's open defect).
-  std::string visibility = "none";
+  // Feedback that prunes the 3D working set (octoray-render --visibility): ray feedback by
+  // default, as octoray-render's.
+  std::string visibility = "rays";
   bool hidden = false;          // an invisible window (tests without a display use Xvfb anyway)
 };
 

@@ -35,7 +35,7 @@ int main(int argc, char** argv) {
   cli.add_option("--cache-mib", o.cacheMib, "CPU brick cache (MiB, default 1024)");
   cli.add_option("--cache-dir", cacheDir, "where imported stores are kept (default ~/.cache/octoray)");
   cli.add_option("--stats", o.statsPath, "per-frame figures as CSV (frame time, working set, RSS)");
-  cli.add_option("--visibility", o.visibility, "3D working-set feedback: none (default), rays, occlusion, both");
+  cli.add_option("--visibility", o.visibility, "3D working-set feedback: rays (default), occlusion, both, none");
   cli.add_flag("--hidden", o.hidden, "an invisible window (still needs a display)");
   CLI11_PARSE(cli, argc, argv);
   try {

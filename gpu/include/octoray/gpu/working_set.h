@@ -143,7 +143,9 @@ class WorkingSet {
   std::vector<volume::LoadError> takeErrors();
   // True when the last frame changed nothing and waits for nothing: no split or merge, no
   // refinement or merge waiting for data or the upload budget, and (with feedback on) no leaf
-  // without feedback. A working set held back by a full pool or by failed bricks is settled.
+  // without feedback, and the feedback it used was drawn for the current view (after a
+  // camera, TF or LOD change the first frame decides from the previous view's feedback). A
+  // working set held back by a full pool or by failed bricks is settled.
   bool settled() const;
 
  private:
@@ -189,6 +191,9 @@ class WorkingSet {
   uint64_t viewDigest_ = 0;
   uint64_t viewChangedFrame_ = 0;
   int64_t pendingMerges_ = 0;
+  // The last update decided from feedback drawn before the view changed (the feedback delay
+  // of one frame): its "nothing to refine" says nothing about the new view.
+  bool staleFeedback_ = false;
   WorkingSetStats stats_;
   // Per frame: emptiness and projection of the current view (working_set.cpp).
   struct FrameContext;
