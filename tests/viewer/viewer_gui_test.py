@@ -138,6 +138,11 @@ class ViewerGui(unittest.TestCase):
             {"type": "action", "name": "rotate-planes", "value": {"view": "axial", "degrees": 30}},
             {"type": "wait-converged"},
             {"type": "screenshot", "path": vw.path("oblique.png")},
+            {"type": "action", "name": "reset-planes"},
+            {"type": "action", "name": "slab", "value": "mip"},
+            {"type": "action", "name": "slab-mm", "value": 4},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("slab.png")},
         ]
         vw.run(self.head_store, steps)
         shot = load_png(vw.path("straight.png"))
@@ -167,6 +172,31 @@ class ViewerGui(unittest.TestCase):
         np.testing.assert_allclose(state["views"]["sagittal"]["plane"]["normal"], r @ [-1, 0, 0], atol=1e-9)
         for view in ("axial", "coronal", "sagittal"):
             self.assert_mpr_matches(self.head, shot, state, view, label="oblique ")
+        # Thick slab (MIP, 4 mm): the maximum over samples spaced at most half the smallest
+        # spacing across the slab, centred on the plane (docs: n = ceil(t / (spacing / 2))).
+        shot = load_png(vw.path("slab.png"))
+        state = load_json(vw.path("slab.png.json"))
+        spacing = min(np.linalg.norm(self.head.affine[:3, i]) for i in range(3))
+        n = math.ceil(4 / (0.5 * spacing))
+        for view in ("axial", "sagittal"):
+            v = state["views"][view]
+            self.assertEqual(v["slabSamples"], n)
+            plane = dict(v["plane"])
+            normal = np.array(plane["normal"])
+            stack = []
+            for k in range(n):
+                shifted = dict(plane, origin=list(np.array(plane["origin"]) + (-2 + (k + 0.5) * 4 / n) * normal))
+                stack.append(self.head.plane_values(shifted))
+            stack = np.array(stack)
+            expected = np.where(np.all(np.isnan(stack), axis=0), np.nan, np.nanmax(np.where(np.isnan(stack), -np.inf, stack), axis=0))
+            wl = state["session"]["windowLevel"]
+            grey = window_grey(expected, wl["window"], wl["level"])
+            got = crop(shot, v["rect"])[:, :, 0].astype(int)
+            diff = np.abs(got - grey.astype(int))
+            self.assertLessEqual(int(diff.max()), 1, f"slab {view}")
+            self.assertGreater(float(np.mean(diff == 0)), 0.995, f"slab {view}")
+            # And it differs from the single slice: the slab shows more.
+            self.assertGreater(int(np.count_nonzero(got != window_grey(stack[n // 2], wl["window"], wl["level"]))), 1000)
 
     # (b) with a gantry tilt: the shear is in the geometry, the slices still agree.
     def test_tilted_series_mpr(self):
@@ -325,15 +355,28 @@ class ViewerGui(unittest.TestCase):
             {"type": "drag", "from": {"view": "axial", "patient": list(c0)}, "to": {"view": "axial", "patient": list(c1)}, "steps": 3},
             {"type": "action", "name": "tool", "value": "rectangle"},
             {"type": "drag", "from": {"view": "axial", "patient": list(c0)}, "to": {"view": "axial", "patient": list(c1)}, "steps": 3},
+            {"type": "action", "name": "tool", "value": "angle"},
+            {"type": "click", "at": {"view": "axial", "patient": list(self.head.patient(300, 250, k))}},
+            {"type": "click", "at": {"view": "axial", "patient": list(self.head.patient(250, 250, k))}},
+            {"type": "click", "at": {"view": "axial", "patient": list(self.head.patient(250, 200, k))}},
             {"type": "click", "at": {"view": "axial", "patient": list(probe)}, "mods": ["shift"]},
             {"type": "action", "name": "layout", "value": "four-up"},
+            {"type": "dump-state", "path": vw.path("before-rotate.json")},
+            # Ctrl+drag about the crosshair, from 60 px right of it to 60 px below it: the other
+            # planes turn 90 degrees about the axial normal, with the cursor (clockwise on screen).
+            {"type": "drag", "mods": ["ctrl"], "from": {"view": "axial", "patient": list(probe + [60 * 0.49, 0, 0])},
+             "to": {"view": "axial", "patient": list(probe + [0, 60 * 0.49, 0])}, "steps": 6},
             {"type": "wait-converged"},
             {"type": "screenshot", "path": vw.path("measured.png")},
         ]
         vw.run(self.head_store, steps)
         state = load_json(vw.path("measured.png.json"))
         m = state["measurements"]
-        self.assertEqual([x["kind"] for x in m], ["distance", "ellipse", "rectangle"])
+        self.assertEqual([x["kind"] for x in m], ["distance", "ellipse", "rectangle", "angle"])
+        self.assertAlmostEqual(m[3]["degrees"], 90.0, places=6)
+        # Ctrl+drag turned the coronal plane's normal (+y, posterior) to -x (right) about +z.
+        np.testing.assert_allclose(state["views"]["coronal"]["plane"]["normal"], [-1, 0, 0], atol=1e-6)
+        np.testing.assert_allclose(state["views"]["axial"]["plane"]["normal"], [0, 0, 1], atol=1e-9)
         self.assertAlmostEqual(m[0]["mm"], float(np.linalg.norm(b - a)), places=4)
         # The ROIs' statistics on the documented grid (smallest spacing, centred in the box).
         step = min(np.linalg.norm(self.head.affine[:3, i]) for i in range(3))
