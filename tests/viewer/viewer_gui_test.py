@@ -239,6 +239,34 @@ class ViewerGui(unittest.TestCase):
         value = psnr(got, want)
         self.assertGreaterEqual(value, 40.0, f"3D view vs octoray-render: PSNR {value:.1f} dB")
 
+    # An edited transfer function takes effect at once, and the picture is octoray-render's
+    # with the same (saved) function.
+    def test_transfer_function_edit(self):
+        vw = self.viewer("tf")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("before.png")},
+            {"type": "action", "name": "tf-opacity", "value": [[-200, 0], [-50, 0.02], [150, 0.05], [700, 0.6]]},
+            {"type": "action", "name": "tf-color", "value": [[-200, 0.9, 0.6, 0.5], [150, 1.0, 0.9, 0.8], [700, 1, 1, 1]]},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("after.png")},
+            {"type": "action", "name": "save-tf", "value": vw.path("edited.json")},
+        ]
+        vw.run(self.head_store, steps, extra=["--preset", "bone"])
+        state = load_json(vw.path("after.png.json"))
+        camera = state["views"]["3d"]["camera"]
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
+                 "--size", f"{camera['width']}x{camera['height']}", "--tf", vw.path("edited.json"),
+                 "-o", vw.path("render.png")])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        before, after, want = (load_png(vw.path(n)) for n in ("before.png", "after.png", "render.png"))
+        self.assertLess(psnr(before, after), 32.0, "the edit did not change the picture")
+        self.assertGreater(float(after[:, :, 2].mean() - before[:, :, 2].mean()), 2.0, "bone should turn from ivory to white")
+        self.assertGreaterEqual(psnr(after, want), 40.0)
+
     # The crop box: its face dragged by a handle in the axial view crops the 3D view, which
     # still equals octoray-render with the same box.
     def test_clip_box_handles(self):

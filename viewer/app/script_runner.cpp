@@ -12,6 +12,7 @@
 #include "app.h"
 #include "octoray/core/error.h"
 #include "octoray/gpu/image_io.h"
+#include "octoray/transfer/transfer_function_io.h"
 #include "util.h"
 
 namespace octoray::viewer {
@@ -205,6 +206,27 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   else if (name == "help") showHelp = value.is_boolean() ? value.get<bool>() : !showHelp;
   else if (name == "panel") showPanel = value.get<bool>();
   else if (name == "clear-measurements") session.measurements.clear();
+  else if (name == "tf-opacity") {
+    // [[HU, alpha], ...]: the opacity points the TF editor's canvas edits.
+    std::vector<transfer::OpacityPoint> points;
+    for (const auto& p : value) points.push_back({p.at(0).get<double>(), p.at(1).get<float>()});
+    transfer::TransferFunction tf = session.tf;
+    tf.opacity = points;
+    transfer::validate(tf, options_.script);
+    session.tf = tf;
+  } else if (name == "tf-color") {
+    // [[HU, r, g, b], ...]: the colour points of the editor's swatches.
+    std::vector<transfer::ColorPoint> points;
+    for (const auto& p : value) {
+      points.push_back({p.at(0).get<double>(), p.at(1).get<float>(), p.at(2).get<float>(), p.at(3).get<float>()});
+    }
+    transfer::TransferFunction tf = session.tf;
+    tf.color = points;
+    transfer::validate(tf, options_.script);
+    session.tf = tf;
+  } else if (name == "save-tf") {
+    transfer::saveTransferFunction(session.tf, text());
+  }
   else throw Error(options_.script, fmt::format("unknown action \"{}\"", name));
 }
 
