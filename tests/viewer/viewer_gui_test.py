@@ -38,12 +38,12 @@ class Viewer:
         self.workdir = workdir
         self.count = 0
 
-    def run(self, data, steps, extra=(), expect_ok=True):
+    def run(self, data, steps, extra=(), expect_ok=True, env_extra=None):
         self.count += 1
         script = os.path.join(self.workdir, f"script{self.count}.json")
         with open(script, "w") as f:
             json.dump({"format": "octoray-view-script", "version": 1, "events": steps + [{"type": "quit"}]}, f)
-        env = dict(os.environ, OCTORAY_CONFIG=os.path.join(self.workdir, "config"))
+        env = dict(os.environ, OCTORAY_CONFIG=os.path.join(self.workdir, "config"), **(env_extra or {}))
         argv = ["xvfb-run", "-a", "-s", f"-screen 0 {SIZE[0]}x{SIZE[1]}x24", os.path.join(BIN, "octoray-view")]
         if data:
             argv.append(data)
@@ -523,6 +523,20 @@ class ViewerGui(unittest.TestCase):
         state = load_json(vw.path("unsupported.png.json"))
         self.assertTrue(any("notes.txt" in m for m in state["messages"]), state["messages"])
         self.assertEqual(state["session"]["windowLevel"], {"window": 1500, "level": -600, "preset": "lung"})
+
+    # A display without OpenGL 4.5 core (Mesa told to offer 3.3): a window says so, naming
+    # what the display offers, and the viewer exits with an error status.
+    def test_display_without_gl45_shows_a_message(self):
+        vw = self.viewer("nogl")
+        p = vw.run(self.head_store, [], extra=["--screenshot", vw.path("nogl.png")], expect_ok=False,
+                   env_extra={"MESA_GL_VERSION_OVERRIDE": "3.3"})
+        self.assertEqual(p.returncode, 1)
+        self.assertIn("OpenGL 4.5", p.stderr)
+        shot = load_png(vw.path("nogl.png"))
+        red = (shot[:, :, 0] > 90) & (shot[:, :, 1] < 40) & (shot[:, :, 2] < 40)
+        self.assertGreater(float(red.mean()), 0.5, "the message window is not shown")
+        text = (shot[:, :, 0] > 200) & (shot[:, :, 1] > 200)
+        self.assertGreater(int(text.sum()), 500, "no text in the message window")
 
     # A DICOM folder is imported in the background (MPR from the source meanwhile), and the
     # store is reused on the next open.

@@ -133,8 +133,12 @@ void installCallbacks(App& app) {
 App::App(const AppOptions& options) : options_(options) {
   gpu::GlContextOptions glOptions;
   glOptions.debug = false;
-  context_ = gpu::createWindowContext(options.width, options.height, "octoray-view", glOptions,
-                                      !options.hidden);
+  try {
+    context_ = gpu::createWindowContext(options.width, options.height, "octoray-view", glOptions,
+                                        !options.hidden);
+  } catch (const Error& e) {
+    throw GlUnavailable(e.what());
+  }
   glfwSwapInterval(0);
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();

@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gpu_renderer.h"
 #include "octoray/viewer/dataset.h"
@@ -30,6 +31,14 @@
 struct ImFont;
 
 namespace octoray::viewer {
+
+// The display cannot give the OpenGL 4.5 core context the renderer needs.
+class GlUnavailable : public Error {
+ public:
+  explicit GlUnavailable(const std::string& reason) : Error("", reason) {}
+};
+// A window saying so (startup_error.cpp); returns the exit status (1).
+int showStartupError(const std::string& message, const std::string& screenshot, bool exitAfter);
 
 struct Rect {
   int x = 0, y = 0, w = 0, h = 0;

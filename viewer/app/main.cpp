@@ -10,6 +10,7 @@
 
 #include <cstdio>
 #include <iostream>
+#include <memory>
 
 #include "app.h"
 #include "octoray/core/error.h"
@@ -43,7 +44,13 @@ int main(int argc, char** argv) {
       throw Error("", fmt::format("--size \"{}\": expected WxH, at least 320x240", size));
     }
     o.cacheDir = cacheDir;
-    viewer::App app(o);
+    std::unique_ptr<viewer::App> made;
+    try {
+      made = std::make_unique<viewer::App>(o);
+    } catch (const viewer::GlUnavailable& e) {
+      return viewer::showStartupError(e.what(), o.screenshot, o.exit);
+    }
+    viewer::App& app = *made;
     const int code = app.run();
     // Messages the window showed also go to stderr, so scripts and tests see them.
     for (const auto& m : app.messages) std::cerr << "octoray-view: " << m << "\n";
