@@ -158,6 +158,26 @@ void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCoun
 
 // Reads one file's attributes (pixel data parsed, not decoded). Throws Error with the reason
 // to skip it.
+}  // namespace
+
+PatientIdentity readPatientIdentity(const std::string& path) {
+  gdcm::Reader reader;
+  reader.SetFileName(path.c_str());
+  if (!reader.ReadUpToTag(kPixelData, std::set<gdcm::Tag>{kPixelData})) {
+    throw Error(path, "not a DICOM file, or truncated (GDCM could not parse it)");
+  }
+  const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+  PatientIdentity p;
+  p.name = stringValue(ds, gdcm::Tag(0x0010, 0x0010));
+  p.id = stringValue(ds, gdcm::Tag(0x0010, 0x0020));
+  p.birthDate = stringValue(ds, gdcm::Tag(0x0010, 0x0030));
+  p.studyDate = stringValue(ds, gdcm::Tag(0x0008, 0x0020));
+  p.studyDescription = stringValue(ds, gdcm::Tag(0x0008, 0x1030));
+  return p;
+}
+
+namespace {
+
 FileHeader readHeader(const std::string& path) {
   detail::vetWithGdcm(path);
   // Everything up to the pixel data value, which is skipped (the stream stops at its start).

@@ -553,6 +553,21 @@ class ViewerGui(unittest.TestCase):
         self.assertFalse(state["dataset"]["reusedCache"])
         self.assertTrue(os.path.exists(state["dataset"]["store"]))
         self.assertTrue(state["dataset"]["store"].startswith(vw.path("cache")))
+        # Patient corners: off by default; on, they show on screen but a screenshot leaves them
+        # out unless it asks for them.
+        steps = [{"type": "action", "name": "overlays", "value": False},
+                 {"type": "wait-converged"},
+                 {"type": "screenshot", "path": vw.path("plain.png")},
+                 {"type": "action", "name": "patient-info", "value": True},
+                 {"type": "screenshot", "path": vw.path("unasked.png")},
+                 {"type": "screenshot", "path": vw.path("asked.png"), "patientInfo": True}]
+        vw.run(HEAD, steps)
+        plain, unasked, asked = (load_png(vw.path(n)) for n in ("plain.png", "unasked.png", "asked.png"))
+        views = load_json(vw.path("plain.png.json"))["views"]
+        for view in ("axial", "coronal", "sagittal"):
+            r = views[view]["rect"]
+            self.assertTrue(np.array_equal(crop(plain, r), crop(unasked, r)), f"{view}: identity in a screenshot")
+            self.assertFalse(np.array_equal(crop(plain, r), crop(asked, r)), f"{view}: identity not shown when asked")
         # Opened again, through a copy at another path: same content, same store.
         copy = vw.path("head-copy")
         shutil.copytree(HEAD, copy)

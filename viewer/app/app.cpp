@@ -497,7 +497,9 @@ bool App::converged() const {
   if (!dataset_) return true;
   if (dataset_->state() == Dataset::State::Importing) return false;
   if (dataset_->state() == Dataset::State::Failed) return true;
-  if (!view3d_ || !slicer_) return true;  // nothing more will come
+  // Ready but not opened yet (the next frame opens it), or it failed to open (nothing more
+  // will come).
+  if (!view3d_ || !slicer_) return datasetFailedOpen_;
   for (ViewId v : {ViewId::Axial, ViewId::Coronal, ViewId::Sagittal, ViewId::Volume}) {
     if (viewRect(v).w < 8 || viewRect(v).h < 8) continue;
     if (v == ViewId::Volume) {

@@ -225,9 +225,22 @@ void App::drawViews() {
         }
       }
       if (session.patientInfo && !hidePatientInfo_ && dataset_) {
+        // Off by default; never in a screenshot unless the screenshot asks for it.
         const VolumeInfo info = dataset_->info();
-        const std::string who = fmt::format("{}\n{}  {}", info.description, info.modality,
-                                            info.seriesUid.empty() ? "" : info.seriesUid.substr(0, 24));
+        const dicom::PatientIdentity person = dataset_->patient();
+        // DICOM dates (YYYYMMDD) as YYYY-MM-DD; absent values left out.
+        auto date = [](const std::string& d) {
+          return d.size() == 8 ? d.substr(0, 4) + "-" + d.substr(4, 2) + "-" + d.substr(6, 2) : d;
+        };
+        std::string who;
+        if (person.name.empty() && person.id.empty()) {
+          who = fmt::format("(the store keeps no patient identity)\n{}  {}", info.description, info.modality);
+        } else {
+          who = person.name + "\nID " + person.id;
+          if (!person.birthDate.empty()) who += "  born " + date(person.birthDate);
+          who += "\nstudy " + date(person.studyDate) + "  " + person.studyDescription;
+          who += "\n" + info.description + "  " + info.modality;
+        }
         outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, who).x - 8, a.y + 8 + fs), dim, who);
       }
       // Measurements of this view (and the one being drawn).

@@ -215,6 +215,20 @@ void Dataset::importThread() {
       status_ = "hashing";
     }
     slicesTotal_ = info.dims[2];
+    if (info.format == "dicom") {
+      // The patient corner's identity, from the first image of the series the import reads.
+      try {
+        const dicom::DicomScan scan = dicom::scanDicom(path_);
+        const auto& series = scan.series.at(dicom::defaultSeriesIndex(scan, path_));
+        if (!series.frames.empty()) {
+          const dicom::PatientIdentity identity = dicom::readPatientIdentity(series.frames.front().path);
+          std::lock_guard lock(mutex_);
+          patient_ = identity;
+        }
+      } catch (const std::exception&) {
+        // No identity to show; the import itself reports what is wrong with the files.
+      }
+    }
     // The preview reads its own copy of the source while the import reads this one.
     auto preview = std::make_unique<PreviewVolume>(info, uint64_t{256} << 20);
     {
@@ -316,6 +330,11 @@ std::string Dataset::storePath() const {
 const PreviewVolume* Dataset::preview() const {
   std::lock_guard lock(mutex_);
   return preview_.get();
+}
+
+dicom::PatientIdentity Dataset::patient() const {
+  std::lock_guard lock(mutex_);
+  return patient_;
 }
 
 VolumeInfo Dataset::info() const {

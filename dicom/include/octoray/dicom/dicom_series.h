@@ -77,6 +77,14 @@ struct ScanOptions {
   std::function<void(std::size_t, std::size_t)> progress;
 };
 
+// Who and when, for a viewer's patient corner (never written into a store: see the store's
+// provenance). Empty strings where the file has no value. Throws octoray::Error naming the
+// file when it cannot be parsed.
+struct PatientIdentity {
+  std::string name, id, birthDate, studyDate, studyDescription;
+};
+PatientIdentity readPatientIdentity(const std::string& file);
+
 // Scans `path`: a folder (recursively), a DICOMDIR file, or a single DICOM file. A folder
 // holding a DICOMDIR is still searched file by file, and the DICOMDIR's list is checked
 // against what is present. Throws octoray::Error only when `path` itself cannot be read.

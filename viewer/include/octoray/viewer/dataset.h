@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/volume_source.h"
 #include "octoray/viewer/mpr.h"
 #include "octoray/volume/store_reader.h"
@@ -80,6 +81,9 @@ class Dataset {
   const PreviewVolume* preview() const;
   // What the source is, once known (description, dims, spacing, modality, UID).
   VolumeInfo info() const;
+  // For a DICOM source: patient name, ID, dates from its first image (empty for stores, which
+  // keep no identity).
+  dicom::PatientIdentity patient() const;
 
  private:
   void importThread();
@@ -92,6 +96,7 @@ class Dataset {
   mutable std::mutex mutex_;
   std::string error_, status_, storePath_;
   VolumeInfo info_;
+  dicom::PatientIdentity patient_;
   std::unique_ptr<PreviewVolume> preview_;
   std::unique_ptr<volume::StoreReader> store_;
   std::thread import_, previewThread_;
