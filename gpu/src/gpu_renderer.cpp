@@ -253,6 +253,7 @@ std::array<float, 3> GpuRenderer::domainMax(const Camera& camera) const {
 const WorkingSet& GpuRenderer::workingSet() const { return impl_->workingSet; }
 const BrickPool& GpuRenderer::pool() const { return impl_->pool; }
 const volume::BrickCache& GpuRenderer::cache() const { return impl_->cache; }
+volume::BrickCache& GpuRenderer::sharedCache() { return impl_->cache; }
 const volume::BrickLoader& GpuRenderer::loader() const { return impl_->loader; }
 
 }  // namespace octoray::gpu

@@ -97,7 +97,9 @@ TEST(ViewerMpr, PlanePassesThroughTheCrosshairAndFitsTheVolume) {
   // Zoom 2 halves the pixel size; pan moves the view centre along the screen axes.
   s.mprViews[0] = {2.0, 10.0, -5.0};
   const MprPlane zoomed = mprPlane(ViewId::Axial, s, grid, 400, 300);
-  const MprPlane plain = mprPlane(ViewId::Axial, Session{.crosshair = s.crosshair}, grid, 400, 300);
+  Session unzoomed;
+  unzoomed.crosshair = s.crosshair;
+  const MprPlane plain = mprPlane(ViewId::Axial, unzoomed, grid, 400, 300);
   EXPECT_NEAR(zoomed.mmPerPixel, 0.5 * plain.mmPerPixel, 1e-12);
   const Vec3 shift = zoomed.at(200, 150) - plain.at(200, 150);
   EXPECT_NEAR(shift.x, 10.0, 1e-9);
@@ -271,7 +273,9 @@ TEST(ViewerSession, JsonRoundTripsEveryField) {
 }
 
 TEST(ViewerSession, BadFieldsAreNamed) {
-  const json good = sessionToJson(Session{.tf = transfer::findPreset("bone")});
+  Session base;
+  base.tf = transfer::findPreset("bone");
+  const json good = sessionToJson(base);
   auto expectError = [&](json j, const std::string& field) {
     try {
       sessionFromJson(j, "bad.json");

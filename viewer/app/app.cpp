@@ -153,7 +153,7 @@ App::App(const AppOptions& options) : options_(options) {
   style.Colors[ImGuiCol_MenuBarBg] = ImVec4(0.12f, 0.12f, 0.13f, 1.0f);
   const char* fontPath = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
   if (fs::exists(fontPath)) {
-    static const ImWchar ranges[] = {0x0020, 0x00FF, 0x00B0, 0x00B0, 0x00B2, 0x00B2, 0x2013, 0x2026, 0x25B8, 0x25B8, 0};
+    static const ImWchar ranges[] = {0x0020, 0x00FF, 0x2013, 0x2026, 0x2502, 0x2502, 0x25B8, 0x25B8, 0};
     io.Fonts->AddFontFromFileTTF(fontPath, 15.0f, nullptr, ranges);
     overlayFont_ = io.Fonts->AddFontFromFileTTF("/usr/share/fonts/truetype/dejavu/DejaVuSans-Bold.ttf", 16.0f,
                                                 nullptr, ranges);
@@ -265,7 +265,7 @@ void App::onDatasetReady() {
   config.visibility = gpu::parseVisibility(options_.visibility);
   try {
     view3d_ = std::make_unique<View3d>(*store, config);
-    slicer_ = std::make_unique<StoreSlicer>(*store, const_cast<volume::BrickCache&>(view3d_->renderer().cache()));
+    slicer_ = std::make_unique<StoreSlicer>(*store, view3d_->renderer().sharedCache());
   } catch (const std::exception& e) {
     messages.push_back(fmt::format("{}: {}", dataset_->storePath(), e.what()));
     view3d_.reset();

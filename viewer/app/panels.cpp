@@ -14,11 +14,6 @@
 namespace octoray::viewer {
 namespace fs = std::filesystem;
 
-namespace {
-
-std::string mib(uint64_t bytes) { return fmt::format("{:.0f} MiB", static_cast<double>(bytes) / (1 << 20)); }
-
-}  // namespace
 
 void App::drawPanels() {
   // Menu bar.
@@ -272,22 +267,25 @@ void App::drawStatusBar() {
   ImGui::PushStyleVar(ImGuiStyleVar_WindowPadding, ImVec2(8, 3));
   ImGui::Begin("##status", nullptr, ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize |
                                         ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoScrollbar);
+  // Compact, so the whole line fits a 1280-pixel window.
   std::string line = fmt::format("{:.0f} fps", fps_);
   if (view3d_) {
     const gpu::FrameStats& s = view3d_->stats();
-    line += fmt::format("   3D {:.0f} ms   working set {} bricks   pool {}/{} slots ({} of {})", view3d_->lastFrameMs(),
-                        s.workingSet.bricks, s.poolSlotsUsed, s.poolSlots, mib(s.poolBytesUsed), mib(s.poolBytes));
-    line += fmt::format("   cache {} of {}", mib(s.cacheBytes), mib(s.cacheBudgetBytes));
     const uint64_t read = view3d_->bytesRead() + (slicer_ ? slicer_->stats().bytesRead : 0);
     const std::size_t queued = static_cast<std::size_t>(s.loaderQueued) + (slicer_ ? slicer_->stats().queued : 0);
-    line += fmt::format("   loader queue {}   read {}", queued, mib(read));
+    line += fmt::format("  \u2502  3D {:.0f} ms  \u2502  working set {} bricks  \u2502  pool {}/{} ({}/{} MiB)"
+                        "  \u2502  cache {}/{} MiB  \u2502  queue {}  \u2502  read {} MiB",
+                        view3d_->lastFrameMs(), s.workingSet.bricks, s.poolSlotsUsed, s.poolSlots,
+                        s.poolBytesUsed >> 20, s.poolBytes >> 20, s.cacheBytes >> 20, s.cacheBudgetBytes >> 20,
+                        queued, read >> 20);
   }
   if (grid_) {
     const Vec3 sp{length(grid_->patientFromIndex.column(0)), length(grid_->patientFromIndex.column(1)),
                   length(grid_->patientFromIndex.column(2))};
-    line += fmt::format("   {}x{}x{} @ {:.3g}x{:.3g}x{:.3g} mm", grid_->dims[0], grid_->dims[1], grid_->dims[2], sp.x, sp.y, sp.z);
+    line += fmt::format("  \u2502  {}\u00d7{}\u00d7{}, {:.3g}\u00d7{:.3g}\u00d7{:.3g} mm", grid_->dims[0], grid_->dims[1],
+                        grid_->dims[2], sp.x, sp.y, sp.z);
   }
-  line += fmt::format("   tool: {}", toolName(controller_.tool));
+  line += fmt::format("  \u2502  {}", toolName(controller_.tool));
   ImGui::TextUnformatted(line.c_str());
   ImGui::End();
   ImGui::PopStyleVar();

@@ -79,6 +79,8 @@ class GpuRenderer {
   const WorkingSet& workingSet() const;
   const BrickPool& pool() const;
   const volume::BrickCache& cache() const;
+  // The CPU cache, for readers that share it (the viewer's MPR slicer; it is thread-safe).
+  volume::BrickCache& sharedCache();
   const volume::BrickLoader& loader() const;
 
  private:
