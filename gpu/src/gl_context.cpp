@@ -345,7 +345,7 @@ namespace {
 // suppression can name, which would fail every sanitised run of a GL tool. Resident, the
 // memory stays reachable and nothing is reported; a process that rendered once would keep
 // the driver anyway when it renders again.
-void keepDriversResident() {
+void keepDriversResidentImpl() {
   dl_iterate_phdr(
       [](dl_phdr_info* info, std::size_t, void*) {
         const std::string_view name = info->dlpi_name != nullptr ? info->dlpi_name : "";
@@ -391,7 +391,7 @@ GlContext::GlContext(bool debug) : debug_(debug), log_(std::make_unique<detail::
 GlContext::~GlContext() = default;
 
 void GlContext::initialise(std::string_view api) {
-  keepDriversResident();
+  keepDriversResidentImpl();
   GLint major = 0;
   GLint minor = 0;
   GLint profile = 0;
@@ -487,11 +487,14 @@ WindowGlContext::WindowGlContext(int width, int height, const std::string& title
   window_ = glfwCreateWindow(width, height, title.c_str(), nullptr, nullptr);
   if (window_ == nullptr) {
     std::string reason = glfwErrorText();
+    keepDriversResidentImpl();  // the failed attempt may have loaded the driver
     releaseGlfw();
     throw Error("", "GLFW: no window with an OpenGL 4.5 core context: " + reason);
   }
   glfwMakeContextCurrent(window_);
 }
+
+void keepGlDriversResident() { keepDriversResidentImpl(); }
 
 WindowGlContext::~WindowGlContext() {
   if (glfwGetCurrentContext() == window_) glfwMakeContextCurrent(nullptr);

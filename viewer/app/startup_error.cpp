@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "app.h"
+#include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/image_io.h"
 
 namespace octoray::viewer {
@@ -28,6 +29,7 @@ int showStartupError(const std::string& message, const std::string& screenshot, 
     return 1;
   }
   glfwMakeContextCurrent(window);
+  gpu::keepGlDriversResident();
   const char* version = reinterpret_cast<const char*>(glGetString(GL_VERSION));
   const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
   const std::string offered = std::string(version ? version : "unknown") + " (" + (renderer ? renderer : "unknown") + ")";

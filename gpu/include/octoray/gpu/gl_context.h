@@ -104,6 +104,13 @@ class WindowGlContext final : public GlContext {
   GLFWwindow* window_;
 };
 
+// Keeps the GL drivers loaded so far (Mesa's *_dri.so) resident until the process exits, so
+// terminating GLFW or EGL does not unload a driver with its static state still allocated
+// (which LeakSanitizer would report from an unnamed module). Contexts made here do it
+// themselves; code that makes its own GLFW context (the viewer's start-up error window)
+// calls it.
+void keepGlDriversResident();
+
 // Throws octoray::Error("", "GL errors at <where>: ...") when ctx.takeErrors() is not empty.
 void throwOnGlErrors(GlContext& ctx, std::string_view where);
 
