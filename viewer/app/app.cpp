@@ -59,32 +59,31 @@ std::string keyName(int key) {
 
 }  // namespace
 
+// A pointer event at the cursor position (x, y) in window coordinates, in framebuffer pixels.
+InputEvent pointerEvent(GLFWwindow* win, InputEvent::Type type, double x, double y) {
+  int ww = 1, fw = 1, wh = 1, fh = 1;
+  glfwGetWindowSize(win, &ww, &wh);
+  glfwGetFramebufferSize(win, &fw, &fh);
+  InputEvent e;
+  e.type = type;
+  e.x = x * fw / std::max(1, ww);
+  e.y = y * fh / std::max(1, wh);
+  return e;
+}
+
 // Real input: GLFW callbacks to InputEvents (ImGui's backend, installed after these, chains
 // to them and sees the same events).
 void installCallbacks(App& app) {
   gApp = &app;
   GLFWwindow* w = app.context_->window();
   glfwSetCursorPosCallback(w, [](GLFWwindow* win, double x, double y) {
-    int ww = 1, fw = 1, wh = 1, fh = 1;
-    glfwGetWindowSize(win, &ww, &wh);
-    glfwGetFramebufferSize(win, &fw, &fh);
-    InputEvent e;
-    e.type = InputEvent::Type::Move;
-    e.x = x * fw / std::max(1, ww);
-    e.y = y * fh / std::max(1, wh);
-    gApp->queue(e);
+    gApp->queue(pointerEvent(win, InputEvent::Type::Move, x, y));
   });
   glfwSetMouseButtonCallback(w, [](GLFWwindow* win, int button, int action, int mods) {
     static double lastPress = -1, lastX = -100, lastY = -100;
     double x = 0, y = 0;
     glfwGetCursorPos(win, &x, &y);
-    int ww = 1, fw = 1, wh = 1, fh = 1;
-    glfwGetWindowSize(win, &ww, &wh);
-    glfwGetFramebufferSize(win, &fw, &fh);
-    InputEvent e;
-    e.type = action == GLFW_PRESS ? InputEvent::Type::Press : InputEvent::Type::Release;
-    e.x = x * fw / std::max(1, ww);
-    e.y = y * fh / std::max(1, wh);
+    InputEvent e = pointerEvent(win, action == GLFW_PRESS ? InputEvent::Type::Press : InputEvent::Type::Release, x, y);
     e.button = button == GLFW_MOUSE_BUTTON_RIGHT    ? MouseButton::Right
                : button == GLFW_MOUSE_BUTTON_MIDDLE ? MouseButton::Middle
                                                     : MouseButton::Left;
@@ -103,13 +102,7 @@ void installCallbacks(App& app) {
     if (ImGui::GetIO().WantCaptureMouse) return;
     double x = 0, y = 0;
     glfwGetCursorPos(win, &x, &y);
-    int ww = 1, fw = 1, wh = 1, fh = 1;
-    glfwGetWindowSize(win, &ww, &wh);
-    glfwGetFramebufferSize(win, &fw, &fh);
-    InputEvent e;
-    e.type = InputEvent::Type::Wheel;
-    e.x = x * fw / std::max(1, ww);
-    e.y = y * fh / std::max(1, wh);
+    InputEvent e = pointerEvent(win, InputEvent::Type::Wheel, x, y);
     e.wheel = dy;
     gApp->queue(e);
   });

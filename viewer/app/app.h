@@ -76,6 +76,8 @@ class View3d {
   // Renders when the inputs changed or the working set still refines. `interacting` asks for
   // interactive quality (half resolution, twice the LOD target).
   void update(const Session& session, int width, int height, bool interacting);
+  // The session's full-quality options (the view's, movies' and EXR exports').
+  gpu::RaycastOptions raycastOptions(const Session& session) const;
   bool converged() const { return converged_; }
   unsigned texture() const { return texture_; }
   int textureWidth() const { return texWidth_; }

@@ -21,18 +21,6 @@ namespace {
 
 constexpr double kDegrees = std::numbers::pi / 180.0;
 
-// Rotation by `radians` about unit `axis` (Rodrigues), as an affine without translation.
-Mat4 rotationAbout(Vec3 axis, double radians) {
-  axis = normalize(axis);
-  const double c = std::cos(radians), s = std::sin(radians), t = 1 - c;
-  const double x = axis.x, y = axis.y, z = axis.z;
-  Mat4 r;
-  r.m[0] = {t * x * x + c, t * x * y - s * z, t * x * z + s * y, 0};
-  r.m[1] = {t * x * y + s * z, t * y * y + c, t * y * z - s * x, 0};
-  r.m[2] = {t * x * z - s * y, t * y * z + s * x, t * z * z + c, 0};
-  return r;
-}
-
 // Keeps a rotation orthonormal after many small products.
 Mat4 orthonormalise(const Mat4& r) {
   Vec3 c0 = normalize(r.column(0));

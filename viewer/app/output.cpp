@@ -165,11 +165,7 @@ void App::exportMovie(const std::string& folder, int frames, double degrees) {
   gpu::Camera camera = session.camera;
   camera.width = std::max(8, r.w) & ~1;  // even sizes for H.264
   camera.height = std::max(8, r.h) & ~1;
-  gpu::RaycastOptions o;
-  o.mode = session.mode;
-  o.isoValue = session.isoValue;
-  o.lodPixels = session.lodPixels;
-  o.clip = clipOptions(session.clip);
+  const gpu::RaycastOptions o = view3d_->raycastOptions(session);
   for (int i = 0; i < frames; ++i) {
     const gpu::Camera c = gpu::turnAboutCentre(camera, grid_->centre(), degrees * i / frames);
     const gpu::Frame f = view3d_->renderer().render(c, session.tf, o);
@@ -189,11 +185,7 @@ void App::export3dExr(const std::string& path) {
   const Rect r = viewRect(ViewId::Volume);
   c.width = std::max(8, r.w);
   c.height = std::max(8, r.h);
-  gpu::RaycastOptions o;
-  o.mode = session.mode;
-  o.isoValue = session.isoValue;
-  o.lodPixels = session.lodPixels;
-  o.clip = clipOptions(session.clip);
+  const gpu::RaycastOptions o = view3d_->raycastOptions(session);
   gpu::writeExr(view3d_->renderer().render(c, session.tf, o).image, path);
 }
 

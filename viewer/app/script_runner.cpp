@@ -189,12 +189,7 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     // {"view": "axial", "degrees": 30}: what a Ctrl+drag does, by an exact angle.
     Vec3 r, d, n;
     viewAxes(parseViewName(value.at("view").get<std::string>()), session.mprRotation, r, d, n);
-    const double a = value.at("degrees").get<double>() * 3.14159265358979323846 / 180.0;
-    const double c = std::cos(a), s = std::sin(a), t = 1 - c;
-    Mat4 rot;
-    rot.m[0] = {t * n.x * n.x + c, t * n.x * n.y - s * n.z, t * n.x * n.z + s * n.y, 0};
-    rot.m[1] = {t * n.x * n.y + s * n.z, t * n.y * n.y + c, t * n.y * n.z - s * n.x, 0};
-    rot.m[2] = {t * n.x * n.z - s * n.y, t * n.y * n.z + s * n.x, t * n.z * n.z + c, 0};
+    const Mat4 rot = rotationAbout(n, value.at("degrees").get<double>() * 3.14159265358979323846 / 180.0);
     session.mprRotation = rot * session.mprRotation;
   } else if (name == "reset-planes") session.mprRotation = Mat4::identity();
   else if (name == "standard-view") standardView(text().empty() ? 'A' : text()[0]);

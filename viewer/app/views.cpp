@@ -55,6 +55,19 @@ gpu::RaycastOptions::ClipBox clipOptions(const ClipBox& c) {
   return out;
 }
 
+gpu::RaycastOptions View3d::raycastOptions(const Session& s) const {
+  gpu::RaycastOptions o;
+  o.mode = s.mode;
+  o.isoValue = s.isoValue;
+  o.lodPixels = s.lodPixels;
+  o.stepMm = s.stepFactor == 1.0 ? 0.0 : s.stepFactor * renderer_->defaultStepMm();
+  o.earlyTermination = s.earlyTermination;
+  o.shading = s.shading ? gpu::RaycastOptions::Shading::FromTransferFunction
+                        : gpu::RaycastOptions::Shading::Off;
+  o.clip = clipOptions(s.clip);
+  return o;
+}
+
 // ---- View3d --------------------------------------------------------------------------------
 
 View3d::View3d(const volume::StoreReader& store, const gpu::RendererConfig& config)
@@ -85,15 +98,8 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   gpu::Camera camera = s.camera;
   camera.width = interactive ? std::max(8, width / 2) : width;
   camera.height = interactive ? std::max(8, height / 2) : height;
-  gpu::RaycastOptions o;
-  o.mode = s.mode;
-  o.isoValue = s.isoValue;
-  o.lodPixels = interactive ? std::max(2.0, 2.0 * s.lodPixels) : s.lodPixels;
-  o.stepMm = s.stepFactor == 1.0 ? 0.0 : s.stepFactor * renderer_->defaultStepMm();
-  o.earlyTermination = s.earlyTermination;
-  o.shading = s.shading ? gpu::RaycastOptions::Shading::FromTransferFunction
-                        : gpu::RaycastOptions::Shading::Off;
-  o.clip = clipOptions(s.clip);
+  gpu::RaycastOptions o = raycastOptions(s);
+  if (interactive) o.lodPixels = std::max(2.0, 2.0 * s.lodPixels);
   const std::string key = fmt::format("{}|{}", content, interactive);
   if (key != lastKey_) {
     converged_ = false;

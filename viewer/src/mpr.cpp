@@ -83,6 +83,17 @@ double Grid::minSpacingMm() const {
 
 // ---- Planes --------------------------------------------------------------------------------
 
+Mat4 rotationAbout(Vec3 axis, double radians) {
+  axis = normalize(axis);
+  const double c = std::cos(radians), s = std::sin(radians), t = 1 - c;
+  const double x = axis.x, y = axis.y, z = axis.z;
+  Mat4 r;
+  r.m[0] = {t * x * x + c, t * x * y - s * z, t * x * z + s * y, 0};
+  r.m[1] = {t * x * y + s * z, t * y * y + c, t * y * z - s * x, 0};
+  r.m[2] = {t * x * z - s * y, t * y * z + s * x, t * z * z + c, 0};
+  return r;
+}
+
 void viewAxes(ViewId v, const Mat4& rotation, Vec3& right, Vec3& down, Vec3& normal) {
   Vec3 r0, d0;
   standardAxes(v, r0, d0);

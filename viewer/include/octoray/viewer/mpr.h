@@ -64,6 +64,10 @@ struct Grid {
   double minSpacingMm() const;
 };
 
+// Rotation by `radians` about the unit direction `axis` (right-handed), as an affine without
+// translation: what turning the MPR planes applies to Session::mprRotation.
+Mat4 rotationAbout(Vec3 axis, double radians);
+
 // The screen axes of view `v` under the shared rotation (identity: standard planes).
 // The right axis is the view's standard right axis projected onto its rotated plane, so a
 // view's picture does not spin when the other planes are rotated about its normal.
