@@ -10,6 +10,8 @@
 #include <limits>
 
 #include "octoray/core/error.h"
+#include "octoray/gpu/image_metrics.h"
+#include "octoray/transfer/preintegration.h"
 
 namespace octoray::gpu::reference {
 namespace {
@@ -43,6 +45,7 @@ struct Frame {
   bool shade = false;
   bool useGradientOpacity = false;
   bool needGradient = false;
+  std::pair<double, double> support;  // the TF's opacity support (pre-integration)
 };
 
 struct RayResult {
@@ -89,8 +92,109 @@ Classification shadePhong(const transfer::Material& material, const Classificati
   return {c.r * lit + spec, c.g * lit + spec, c.b * lit + spec, c.alpha};
 }
 
+// The lighting of shadePhong as (ka + kd |n.l|, ks spec): colour * first + second.
+std::pair<double, double> phongFactors(const transfer::Material& material, const Vec3& gradient,
+                                       const Vec3& rayDirection) {
+  const Classification lit = shadePhong(material, {1.0, 0.0, 0.0, 1.0}, gradient, rayDirection);
+  return {lit.r - lit.g, lit.g};  // r = lit + spec, g = spec
+}
+
+// Counts the TF's control points strictly between lo and hi.
+std::size_t pointsBetween(const transfer::TransferFunction& tf, double lo, double hi) {
+  std::size_t n = 0;
+  for (const auto& p : tf.opacity) n += p.value > lo && p.value < hi ? 1 : 0;
+  for (const auto& p : tf.color) n += p.value > lo && p.value < hi ? 1 : 0;
+  return n;
+}
+
+// One pre-integrated segment: premultiplied colour and opacity of a path of lengthMm along
+// which the value runs linearly from vf to vb; only its part inside the opacity support has
+// material. Sub-steps at their midpoints with exact per-sub-step opacity correction
+// (transfer::integrateSegment's rule, in double with the reference's classify).
+Classification integrateSegment(const Frame& f, double vf, double vb, double lengthMm) {
+  const auto [lo, hi] = f.support;
+  if (!(std::max(vf, vb) >= lo && std::min(vf, vb) <= hi)) return {};
+  const double fc = std::clamp(vf, lo, hi), bc = std::clamp(vb, lo, hi);
+  const double length = vf == vb ? lengthMm : lengthMm * std::abs(bc - fc) / std::abs(vb - vf);
+  if (!(length > 0)) return {};
+  const std::size_t inside = pointsBetween(*f.tf, std::min(fc, bc), std::max(fc, bc));
+  const int subSteps = fc == bc ? 1 : static_cast<int>(std::min<std::size_t>(16 + 16 * inside, 1024));
+  const double ratio = length / subSteps / f.tf->unitDistanceMm;
+  Classification out;
+  double transmittance = 1.0;
+  for (int k = 0; k < subSteps; ++k) {
+    const double v = fc + (k + 0.5) / subSteps * (bc - fc);
+    const Classification c = classify(*f.tf, v);
+    const double alpha = correctOpacity(c.alpha, ratio);
+    if (!(alpha > 0)) continue;
+    const double weight = transmittance * alpha;
+    out.r += weight * c.r;
+    out.g += weight * c.g;
+    out.b += weight * c.b;
+    transmittance *= 1.0 - alpha;
+  }
+  out.alpha = 1.0 - transmittance;
+  return out;
+}
+
+RayResult marchDvrPreintegrated(const Frame& f, const Vec3& o, const Vec3& d,
+                                const Vec3& directionPatient, const Chord& chord) {
+  RayResult out;
+  const transfer::TransferFunction& tf = *f.tf;
+  const double chordMm = chord.tFar - chord.tNear;
+  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
+  const int64_t n = static_cast<int64_t>(steps);
+  const double delta = chordMm / steps;
+  const double ratio = delta / tf.unitDistanceMm;
+  const double stopAt = f.options.earlyTermination;
+  double transmittance = 1.0;
+  double front = sampleAt(*f.volume, indexPoint(o, d, chord.tNear));
+  ++out.samples;
+  for (int64_t s = 0; s < n; ++s) {
+    const double tb = s + 1 == n ? chord.tFar : chord.tNear + static_cast<double>(s + 1) * delta;
+    const double back = sampleAt(*f.volume, indexPoint(o, d, tb));
+    ++out.samples;
+    Classification c = integrateSegment(f, front, back, delta);
+    front = back;
+    if (!(c.alpha > 0)) continue;
+    const double t = chord.tNear + (static_cast<double>(s) + 0.5) * delta;
+    if (f.needGradient) {
+      const Vec3 g = gradientPatient(f, indexPoint(o, d, t));
+      out.samples += 6;
+      const double magnitude = length(g);
+      double factor = 1.0;
+      if (f.useGradientOpacity) factor *= gradientOpacity(tf, magnitude);
+      if (f.options.boundary.enabled) {
+        const BoundaryEnhancement& be = f.options.boundary;
+        factor *= be.kC + be.kS * std::pow(magnitude, be.kE);
+      }
+      if (factor != 1.0) {
+        // The segment's opacity per unit distance scaled, then carried back to its length.
+        const double unitAlpha = c.alpha >= 1.0 ? 1.0 : correctOpacity(c.alpha, 1.0 / ratio);
+        const double scaled = correctOpacity(std::clamp(unitAlpha * factor, 0.0, 1.0), ratio);
+        const double k = scaled / c.alpha;
+        c = {c.r * k, c.g * k, c.b * k, scaled};
+        if (!(c.alpha > 0)) continue;
+      }
+      if (f.shade) {
+        const auto [lit, spec] = phongFactors(tf.material, g, directionPatient);
+        c = {c.r * lit + spec * c.alpha, c.g * lit + spec * c.alpha, c.b * lit + spec * c.alpha,
+             c.alpha};
+      }
+    }
+    if (out.depth == kInf) out.depth = t;
+    out.r += transmittance * c.r;
+    out.g += transmittance * c.g;
+    out.b += transmittance * c.b;
+    transmittance *= 1.0 - c.alpha;
+    if (transmittance == 0.0 || (stopAt < 1.0 && 1.0 - transmittance >= stopAt)) break;
+  }
+  out.a = 1.0 - transmittance;
+  return out;
+}
+
 RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& directionPatient,
-                   const Chord& chord) {
+                   const Chord& chord, double jitter) {
   RayResult out;
   const transfer::TransferFunction& tf = *f.tf;
   const double chordMm = chord.tFar - chord.tNear;
@@ -101,7 +205,7 @@ RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
   const double stopAt = f.options.earlyTermination;
   double transmittance = 1.0;
   for (int64_t s = 0; s < n; ++s) {
-    const double t = chord.tNear + (static_cast<double>(s) + 0.5) * delta;
+    const double t = chord.tNear + (static_cast<double>(s) + jitter) * delta;
     const Vec3 p = indexPoint(o, d, t);
     const double value = sampleAt(*f.volume, p);
     ++out.samples;
@@ -284,6 +388,9 @@ void checkOptions(const RenderOptions& o, const transfer::TransferFunction& tf) 
                               std::isfinite(o.boundary.kE) && o.boundary.kE >= 0)) {
     throw Error("", "boundary enhancement: kC, kS must be finite and kE finite and >= 0");
   }
+  if (o.preintegration && o.jitter) {
+    throw Error("", "pre-integration and jitter are alternatives: choose one");
+  }
   if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
     throw Error("",
                 fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
@@ -291,6 +398,17 @@ void checkOptions(const RenderOptions& o, const transfer::TransferFunction& tf) 
 }
 
 }  // namespace
+
+float rayJitter(uint32_t x, uint32_t y) {
+  // lowbias32 (Chris Wellons' integer hash) of the pixel's two coordinates.
+  uint32_t h = x * 0x8da6b343u ^ y * 0xd8163841u;
+  h ^= h >> 16;
+  h *= 0x7feb352du;
+  h ^= h >> 15;
+  h *= 0x846ca68bu;
+  h ^= h >> 16;
+  return static_cast<float>(h >> 8) * (1.0f / 16777216.0f);
+}
 
 Classification classify(const transfer::TransferFunction& tf, double value) {
   Classification c;
@@ -367,6 +485,7 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
             (options.shading == RenderOptions::Shading::FromTransferFunction && tf.material.shade);
   f.useGradientOpacity = options.gradientOpacity && !tf.gradientOpacity.empty();
   f.needGradient = f.shade || f.useGradientOpacity || options.boundary.enabled;
+  f.support = transfer::opacitySupport(tf);
 
   RenderResult result;
   result.image = Image(camera.width, camera.height);
@@ -389,7 +508,12 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
             RayResult r;
             switch (options.mode) {
               case RenderMode::Dvr:
-                r = marchDvr(f, o, d, ray.direction, chord);
+                if (options.preintegration) {
+                  r = marchDvrPreintegrated(f, o, d, ray.direction, chord);
+                } else {
+                  const double j = options.jitter ? rayJitter(static_cast<uint32_t>(x), static_cast<uint32_t>(y)) : 0.5;
+                  r = marchDvr(f, o, d, ray.direction, chord, j);
+                }
                 break;
               case RenderMode::Iso:
                 r = marchIso(f, o, d, ray.direction, chord);
@@ -414,6 +538,35 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
   result.stats.samples = samples.load();
   result.stats.raysHit = raysHit.load();
   return result;
+}
+
+ReferenceRenderer::ConvergedResult ReferenceRenderer::renderConverged(
+    const Camera& camera, const transfer::TransferFunction& tf, const RenderOptions& options,
+    const ConvergenceRule& rule) const {
+  ConvergedResult out;
+  RenderOptions o = options;
+  RenderResult previous = render(camera, tf, o);
+  out.stepsMm.push_back(previous.stats.stepMm);
+  for (int halving = 0; halving < rule.maxHalvings; ++halving) {
+    o.stepMm = 0.5 * out.stepsMm.back();
+    RenderResult next = render(camera, tf, o);
+    out.stepsMm.push_back(next.stats.stepMm);
+    double maxChange = 0;
+    for (std::size_t i = 0; i < next.image.rgba.size(); ++i) {
+      maxChange = std::max(maxChange, std::abs(static_cast<double>(next.image.rgba[i]) - previous.image.rgba[i]));
+    }
+    const ImageMetrics m = compare(previous.image, next.image);
+    out.changeMax.push_back(maxChange);
+    out.changePsnrDb.push_back(m.psnrDb);
+    previous = std::move(next);
+    if (maxChange <= rule.maxChange && m.psnrDb >= rule.minPsnrDb) {
+      out.converged = true;
+      break;
+    }
+  }
+  out.estimatedMaxError = out.changeMax.empty() ? 0.0 : out.changeMax.back() / 3.0;
+  out.result = std::move(previous);
+  return out;
 }
 
 }  // namespace octoray::gpu::reference

@@ -7,7 +7,9 @@
 // Variants (the #define prelude, see gpu_renderer.cpp): exactly one of MODE_DVR, MODE_ISO,
 // MODE_MIP; SHADING (Phong; gradients exist only then), GRADIENT_OPACITY, BOUNDARY_ENHANCEMENT,
 // SILHOUETTE_ENHANCEMENT (view-dependent transparency), GRADIENT_POOL (gradients read from the
-// RGBA8 pool instead of 6 value fetches), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
+// RGBA8 pool instead of 6 value fetches), PREINTEGRATION (DVR classifies each segment between
+// consecutive samples through the pre-integration table; no CELL_SKIPPING with it), JITTER
+// (DVR samples at a per-pixel fraction of their step), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
 // BRICK_SIZE, BORDER and GRADIENT_DELTA are numbers.
 //
 // Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
@@ -64,6 +66,12 @@ uniform sampler3D uCellRange; // (min, max) texel value per CELL_VOXELS^3 cell o
 uniform sampler1D uTfNonZero; // entry i: uTf entries below i with opacity
 #endif
 uniform vec2 uTfMap;          // tf coordinate = value * uTfMap.x + uTfMap.y
+#ifdef PREINTEGRATION
+// transfer::SegmentExtinctionTable over [range.x, range.y] (the TF's opacity support within
+// the data's range): (front, back) -> (mean colour x extinction, mean extinction per unit).
+uniform sampler2D uPreintegration;
+uniform vec2 uPreintegrationRange;
+#endif
 uniform int uColorPoints, uOpacityPoints, uGradientPoints;
 
 uniform vec4 uMaterial;       // ambient, diffuse, specular, specular power
@@ -102,6 +110,36 @@ vec4 classifyExact(float value) {
                   interpolatePoints(0, uColorPoints, value, 3));
   return vec4(rgb, interpolatePoints(uColorPoints, uOpacityPoints, value, 1));
 }
+
+#ifdef PREINTEGRATION
+// The segment along which the value runs linearly from `front` to `back`: its mean colour and
+// its extinction per unit distance counted over the whole segment (only the part of it whose
+// values lie in the table's range has material: the fraction scales the extinction).
+vec4 preintegrated(float front, float back) {
+  float lo = uPreintegrationRange.x, hi = uPreintegrationRange.y;
+  if (max(front, back) < lo || min(front, back) > hi) return vec4(0.0);
+  float f = clamp(front, lo, hi), b = clamp(back, lo, hi);
+  float span = abs(back - front);
+  float fraction = span > 0.0 ? abs(b - f) / span : 1.0;
+  vec2 bins = vec2(textureSize(uPreintegration, 0));
+  vec2 uv = ((vec2(f, b) - lo) / (hi - lo) * (bins - 1.0) + 0.5) / bins;
+  vec4 e = texture(uPreintegration, uv);
+  return e.a > 0.0 ? vec4(e.rgb / e.a, e.a * fraction) : vec4(0.0);
+}
+#endif
+
+#ifdef JITTER
+// reference::rayJitter: lowbias32 of the pixel (column, row from the top), 24 bits.
+float rayJitter(uint x, uint y) {
+  uint h = (x * 0x8da6b343u) ^ (y * 0xd8163841u);
+  h ^= h >> 16;
+  h *= 0x7feb352du;
+  h ^= h >> 15;
+  h *= 0x846ca68bu;
+  h ^= h >> 16;
+  return float(h >> 8) * (1.0 / 16777216.0);
+}
+#endif
 
 // ---- the brick pool ----
 vec3 slotIndex(uint slot) {
@@ -226,6 +264,16 @@ void main() {
   float transmittance = 1.0;
   float firstDepth = kInfinity;
   vec3 accum = vec3(0.0);
+#ifdef JITTER
+  // Where in its step each sample sits (0.5: the midpoint).
+  float jit = rayJitter(uint(gl_FragCoord.x), uint(uViewport.y) - 1u - uint(gl_FragCoord.y));
+#else
+  float jit = 0.5;
+#endif
+#ifdef PREINTEGRATION
+  float front = 0.0;  // the value at fine step boundary frontK (-1: none yet)
+  int frontK = -1;
+#endif
 #endif
 #ifdef MODE_MIP
   float best = -kInfinity;
@@ -325,7 +373,7 @@ void main() {
         // first sample at or past an exit is found taking every group as full, which can
         // only keep a sample, never drop one.
         while (k >= kLimit && k < k1) {
-          float tk = t0 + (float(k) + 0.5 * float(min(m, k1 - k))) * delta;
+          float tk = t0 + (float(k) + jit * float(min(m, k1 - k))) * delta;
           vec3 cell = clamp(floor((b0 + tk * b1) / float(CELL_VOXELS)), vec3(0.0), vec3(float(kCells - 1)));
           float exitT = tEnd;
           for (int a = 0; a < 3; ++a) {
@@ -334,7 +382,7 @@ void main() {
               exitT = min(exitT, (plane - b0[a]) / b1[a]);
             }
           }
-          int next = k + max(int(ceil(((exitT - t0) / delta - float(k) - 0.5 * float(m)) / float(m))), 1) * m;
+          int next = k + max(int(ceil(((exitT - t0) / delta - float(k) - jit * float(m)) / float(m))), 1) * m;
           if (exitT > tk && cellTransparent(slot, cell)) {
             k = next;
           } else {
@@ -352,10 +400,22 @@ void main() {
         int kEnd = min(kLimit, k1);
         for (;;) {
           g = float(min(m, k1 - k));
+#ifdef PREINTEGRATION
+          // The segment of fine steps k .. k + g: its front value carried over from the
+          // segment before when that one ended here (in this leaf or the previous one).
+          if (frontK != k) front = valueAt(p0 + (t0 + float(k) * delta) * p1);
+          value = valueAt(p0 + (t0 + (float(k) + g) * delta) * p1);
+          c = preintegrated(front, value);
+          front = value;
+          frontK = k + int(g);
           ts = t0 + (float(k) + 0.5 * g) * delta;
+          texel = p0 + ts * p1;  // shading's gradient: at the segment's midpoint
+#else
+          ts = t0 + (float(k) + jit * g) * delta;
           texel = p0 + ts * p1;
           value = valueAt(texel);
           c = texture(uTf, value * uTfMap.x + uTfMap.y);
+#endif
 #ifdef STATS
           stats.x += 1.0;
 #endif

@@ -8,16 +8,20 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 
 #include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gl_program.h"
 #include "octoray/gpu/spatial_index.h"
+#include "octoray/transfer/preintegration.h"
 
 namespace octoray::gpu {
 namespace {
 
 constexpr int kTfTableSize = 8192;
+// Bins of the pre-integration table over the TF's opacity support within the data's range.
+constexpr int kPreintegrationBins = 256;
 constexpr double kDegrees = 3.14159265358979323846 / 180.0;
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -46,6 +50,8 @@ struct Raycaster::Impl {
 
   GlTexture tfTable{GL_TEXTURE_1D};
   GlTexture tfNonZero{GL_TEXTURE_1D};   // entries of tfTable with opacity, counted below i
+  GlTexture preintegration{GL_TEXTURE_2D};  // transfer::SegmentExtinctionTable
+  std::array<float, 2> preintegrationRange{0, 1};
   GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer, feedbackBuffer;
   GlVertexArray vao;
   GlFramebuffer fbo;
@@ -70,6 +76,11 @@ struct Raycaster::Impl {
     glTextureParameteri(tfTable.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
     glTextureParameteri(tfTable.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
     glTextureParameteri(tfTable.id(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTextureStorage2D(preintegration.id(), 1, GL_RGBA32F, kPreintegrationBins, kPreintegrationBins);
+    glTextureParameteri(preintegration.id(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTextureParameteri(preintegration.id(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    glTextureParameteri(preintegration.id(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTextureParameteri(preintegration.id(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
     throwOnGlError("allocating the transfer-function tables");
   }
 
@@ -163,7 +174,12 @@ std::vector<std::string> Raycaster::Impl::defines(const transfer::TransferFuncti
   switch (o.mode) {
     case RaycastMode::Dvr: {
       d.emplace_back("MODE_DVR");
-      if (o.cellSkipping) d.emplace_back("CELL_SKIPPING");
+      if (o.preintegration) {
+        d.emplace_back("PREINTEGRATION");
+      } else {
+        if (o.cellSkipping) d.emplace_back("CELL_SKIPPING");
+        if (o.jitter) d.emplace_back("JITTER");
+      }
       if (shade) d.emplace_back("SHADING");
       const bool gradientOpacity = o.gradientOpacity && !gradientOpacityIsIdentity(tf);
       if (gradientOpacity) d.emplace_back("GRADIENT_OPACITY");
@@ -227,6 +243,28 @@ void Raycaster::Impl::uploadTransferFunction(const transfer::TransferFunction& t
         nonZero[static_cast<std::size_t>(i)] + (table[static_cast<std::size_t>(i) * 4 + 3] > 0 ? 1.0f : 0.0f);
   }
   glTextureSubImage1D(tfNonZero.id(), 0, 0, kTfTableSize + 1, GL_RED, GL_FLOAT, nonZero.data());
+
+  if (options.preintegration && options.mode == RaycastMode::Dvr) {
+    // Over the opacity support within the data's range: a segment is clipped to it in the
+    // shader, so the bins resolve the TF where it has material.
+    auto [sLo, sHi] = transfer::opacitySupport(tf);
+    sLo = std::max(sLo, lo);
+    sHi = std::min(sHi, hi);
+    std::vector<std::array<float, 4>> zeros;
+    const std::vector<std::array<float, 4>>* data = &zeros;
+    std::optional<transfer::SegmentExtinctionTable> table;
+    if (sLo < sHi) {
+      table.emplace(tf, sLo, sHi, kPreintegrationBins);
+      data = &table->data();
+      preintegrationRange = {static_cast<float>(sLo), static_cast<float>(sHi)};
+    } else {
+      // No material in the data's range (or a single value): an all-transparent table.
+      zeros.assign(static_cast<std::size_t>(kPreintegrationBins) * kPreintegrationBins, {0, 0, 0, 0});
+      preintegrationRange = {static_cast<float>(lo), static_cast<float>(hi)};
+    }
+    glTextureSubImage2D(preintegration.id(), 0, 0, 0, kPreintegrationBins, kPreintegrationBins, GL_RGBA,
+                        GL_FLOAT, data->data());
+  }
 
   std::vector<float> points;
   for (const transfer::ColorPoint& p : tf.color) {
@@ -341,6 +379,9 @@ void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
   }
   if (!(tf.unitDistanceMm > 0 && std::isfinite(tf.unitDistanceMm))) {
     throw Error("", fmt::format("transfer function \"{}\": unit distance must be positive", tf.name));
+  }
+  if (options.preintegration && options.jitter) {
+    throw Error("", "pre-integration and jitter are alternatives: choose one");
   }
   if (tf.color.empty() || tf.opacity.empty()) {
     throw Error("", fmt::format("transfer function \"{}\" has no colour or no opacity points", tf.name));
@@ -486,6 +527,11 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
   glUniform1i(prog.uniform("uCellRange"), 3);
   glBindTextureUnit(4, im.tfNonZero.id());
   glUniform1i(prog.uniform("uTfNonZero"), 4);
+  if (options.preintegration) {
+    glBindTextureUnit(5, im.preintegration.id());
+    glUniform1i(prog.uniform("uPreintegration"), 5);
+    glUniform2f(prog.uniform("uPreintegrationRange"), im.preintegrationRange[0], im.preintegrationRange[1]);
+  }
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, im.nodeBuffer.id());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, im.leafBuffer.id());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, im.tfPointBuffer.id());

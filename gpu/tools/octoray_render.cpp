@@ -9,7 +9,9 @@
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
-//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]] | --reference
+//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]]
+//     | --reference [--converge [--converge-max-change D] [--converge-psnr DB]]
+//     [--preintegration on|off | --jitter]  (DVR, both renderers)
 // --path renders a camera path one frame each, with the working set carried across frames
 // and bricks streamed in the background (the interaction benchmark; camera_path.h).
 
@@ -56,7 +58,10 @@ struct Arguments {
   std::optional<double> iso;
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
   bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
-  bool gradientPool = false, noCellSkipping = false;
+  bool gradientPool = false, noCellSkipping = false, jitter = false, converge = false;
+  std::string preintegration = "off";
+  double convergeMaxChange = 1.0 / 1024, convergePsnr = 70;
+  int convergeHalvings = 6;
   std::string mip = "exact";
   double lodPixels = 1.0, orbitDegrees = 0;
   int frames = 1, threads = 0;
@@ -120,6 +125,11 @@ RenderOptions renderOptions(const Arguments& a) {
               : a.shading == "off" ? RenderOptions::Shading::Off
                                    : RenderOptions::Shading::FromTransferFunction;
   o.gradientOpacity = !a.noGradientOpacity;
+  o.preintegration = a.preintegration == "on";
+  o.jitter = a.jitter;
+  if (o.preintegration && o.jitter) {
+    throw Error("", "--preintegration on and --jitter are alternatives: choose one");
+  }
   return o;
 }
 
@@ -311,7 +321,17 @@ int runReference(const Arguments& a) {
 
   start = std::chrono::steady_clock::now();
   const gpu::reference::ReferenceRenderer renderer(volume);
-  const auto result = renderer.render(camera, tf, options);
+  gpu::reference::ReferenceRenderer::ConvergedResult converged;
+  if (a.converge) {
+    gpu::reference::ReferenceRenderer::ConvergenceRule rule;
+    rule.maxChange = a.convergeMaxChange;
+    rule.minPsnrDb = a.convergePsnr;
+    rule.maxHalvings = a.convergeHalvings;
+    converged = renderer.renderConverged(camera, tf, options, rule);
+  } else {
+    converged.result = renderer.render(camera, tf, options);
+  }
+  const auto& result = converged.result;
   const double renderMs = millisecondsSince(start);
 
   gpu::writePng(result.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
@@ -329,14 +349,32 @@ int runReference(const Arguments& a) {
         {"samples", result.stats.samples},
         {"raysHit", result.stats.raysHit},
         {"stepMm", result.stats.stepMm},
+        {"preintegration", options.preintegration},
+        {"jitter", options.jitter},
         {"camera", gpu::cameraToJson(camera)},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
-    std::cout << report.dump(2) << '\n';
+    nlohmann::json report2 = report;
+    if (a.converge) {
+      report2["convergence"] = {{"converged", converged.converged},
+                                {"stepsMm", converged.stepsMm},
+                                {"changeMax", converged.changeMax},
+                                {"changePsnrDb", converged.changePsnrDb},
+                                {"estimatedMaxError", converged.estimatedMaxError}};
+    }
+    std::cout << report2.dump(2) << '\n';
+  } else if (a.converge) {
+    fmt::print("{}: {}x{} {} truth in {:.0f} ms, {} at step {:g} mm (last change {:.2g}, {:.1f} dB)\n",
+               a.output, camera.width, camera.height, a.mode, renderMs,
+               converged.converged ? "converged" : "NOT converged", result.stats.stepMm,
+               converged.changeMax.empty() ? 0.0 : converged.changeMax.back(),
+               converged.changePsnrDb.empty() ? 0.0 : converged.changePsnrDb.back());
   } else {
     fmt::print("{}: {}x{} {} in {:.0f} ms ({} samples), volume loaded in {:.0f} ms\n", a.output,
                camera.width, camera.height, a.mode, renderMs, result.stats.samples, loadMs);
   }
-  return 0;
+  // The picture is written either way (it is the finest step tried); the status says
+  // whether it is a truth.
+  return a.converge && !converged.converged ? 3 : 0;
 }
 
 // --path: one renderFrame() per camera, the working set carried across frames and bricks
@@ -469,6 +507,8 @@ int runGpu(const Arguments& a) {
   }
   options.lodPixels = a.lodPixels;
   options.cellSkipping = !a.noCellSkipping;
+  options.preintegration = shared.preintegration;
+  options.jitter = shared.jitter;
   options.mip = a.mip == "sampled" ? gpu::RaycastOptions::MipMethod::Sampled
                                    : gpu::RaycastOptions::MipMethod::Exact;
 
@@ -655,6 +695,26 @@ int main(int argc, char** argv) {
                  "reference) or sampled (its maximum at the step's samples; faster)")
       ->check(CLI::IsMember({"exact", "sampled"}))
       ->capture_default_str();
+  app.add_option("--preintegration", a.preintegration,
+                 "DVR: on = classify each step as a segment through the pre-integrated TF "
+                 "(removes coarse-step rings), off = at its sample")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
+  app.add_flag("--jitter", a.jitter,
+               "DVR: each sample at a hashed per-pixel fraction of its step (deterministic)");
+  app.add_flag("--converge", a.converge,
+               "reference: the converged truth (the step halved until the picture stops "
+               "changing; exit 3 if it does not); --step is the first step");
+  app.add_option("--converge-max-change", a.convergeMaxChange,
+                 "reference --converge: largest change of any channel to stop at")
+      ->capture_default_str();
+  app.add_option("--converge-psnr", a.convergePsnr,
+                 "reference --converge: PSNR (dB) of the last change to stop at")
+      ->capture_default_str();
+  app.add_option("--converge-halvings", a.convergeHalvings,
+                 "reference --converge: most halvings")
+      ->check(CLI::Range(1, 12))
+      ->capture_default_str();
   app.add_flag("--no-cell-skipping", a.noCellSkipping,
                "GPU: sample transparent 8^3 cells of bricks too (same picture; to measure)");
   app.add_option("--silhouette", a.silhouette,
@@ -673,6 +733,14 @@ int main(int argc, char** argv) {
     }
     if (!a.statsOut.empty() && a.cameraPath.empty()) {
       throw CLI::ValidationError("--stats", "needs --path");
+    }
+    if (!a.reference) {
+      for (const char* referenceOnly : {"--converge", "--converge-max-change", "--converge-psnr",
+                                        "--converge-halvings"}) {
+        if (app.count(referenceOnly) > 0) {
+          throw CLI::ValidationError(referenceOnly, "applies to --reference");
+        }
+      }
     }
     if (a.reference) {
       for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",

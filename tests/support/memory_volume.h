@@ -33,6 +33,8 @@ class MemoryVolume final : public VolumeSource {
   float at(int64_t i, int64_t j, int64_t k) const {
     return values_[static_cast<std::size_t>(i + info_.dims[0] * (j + info_.dims[1] * k))];
   }
+  // Another geometry (the default is a sheared grid of 0.5 x 0.5 x 2 mm).
+  void setPatientFromIndex(const Mat4& m) { info_.patientFromIndex = m; }
   int slabsRead = 0;
 
  private:

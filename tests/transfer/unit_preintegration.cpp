@@ -93,5 +93,76 @@ TEST(Preintegration, TableDiagonalIsThePointValueCorrected) {
   EXPECT_EQ(table.data().size(), 17u * 17u);
 }
 
+
+// The thin shell of the accuracy issue: opacity 0 -> 0.9 -> 0 over 680..720 HU, one colour.
+TransferFunction thinShell() {
+  TransferFunction tf;
+  tf.color = {{0, 1.0f, 0.9f, 0.8f}};
+  tf.opacity = {{680, 0.0f}, {700, 0.9f}, {720, 0.0f}};
+  tf.unitDistanceMm = 1.0;
+  return tf;
+}
+
+TEST(OpacitySupport, EndsWhereTheOpacityFallsToZero) {
+  const auto [lo, hi] = opacitySupport(thinShell());
+  EXPECT_EQ(lo, 680);
+  EXPECT_EQ(hi, 720);
+  const auto open = opacitySupport(constant(0.3f));
+  EXPECT_TRUE(std::isinf(open.first) && open.first < 0);
+  EXPECT_TRUE(std::isinf(open.second) && open.second > 0);
+  const auto none = opacitySupport(constant(0.0f));
+  EXPECT_GT(none.first, none.second);
+}
+
+// Opacity from the table's mean extinction equals the exact segment integral for every
+// length (a property the per-level tables of the paper get by keeping one table per step);
+// with one colour, the colour is exact too.
+TEST(SegmentExtinctionTable, OpacityIsExactForAnyLength) {
+  const TransferFunction tf = thinShell();
+  const SegmentExtinctionTable table(tf, 680, 720, 161);  // bins every 0.25 HU
+  ASSERT_EQ(table.data().size(), 161u * 161u);
+  double worstAlpha = 0, worstColour = 0;
+  for (const auto& [f, b] : {std::pair{0u, 160u}, std::pair{160u, 0u}, std::pair{40u, 41u},
+                             std::pair{10u, 90u}, std::pair{80u, 80u}, std::pair{0u, 0u},
+                             std::pair{100u, 160u}}) {
+    for (const double length : {0.05, 0.5, 2.0, 8.0}) {
+      const std::array<double, 4> exact =
+          integrateSegment(tf, table.valueAt(f), table.valueAt(b), length, 20000);
+      const std::array<float, 4>& e = table.at(f, b);
+      const double alpha = 1.0 - std::exp(-e[3] * length / tf.unitDistanceMm);
+      worstAlpha = std::max(worstAlpha, std::abs(alpha - exact[3]));
+      const double colour = e[3] > 0 ? e[0] / e[3] * alpha : 0.0;
+      worstColour = std::max(worstColour, std::abs(colour - exact[0]));
+    }
+  }
+  EXPECT_LT(worstAlpha, 2e-4);
+  EXPECT_LT(worstColour, 2e-4);
+  // Symmetric in front and back, and nothing outside the support.
+  EXPECT_FLOAT_EQ(table.at(10, 90)[3], table.at(90, 10)[3]);
+  EXPECT_EQ(table.at(0, 0)[3], 0.0f);
+  EXPECT_EQ(table.at(160, 160)[3], 0.0f);
+}
+
+// With a colour ramp the mean neglects the order inside the segment: the error shrinks as
+// the segment's opacity does (short steps), which is where the raycaster uses it.
+TEST(SegmentExtinctionTable, ColourOrderErrorShrinksWithTheSegmentOpacity) {
+  TransferFunction tf;
+  tf.color = {{0, 1, 0, 0}, {100, 0, 0, 1}};
+  tf.opacity = {{0, 0.5f}};
+  tf.unitDistanceMm = 1.0;
+  const SegmentExtinctionTable table(tf, 0, 100, 101);
+  double previous = 1;
+  for (const double length : {4.0, 1.0, 0.25, 0.0625}) {
+    const std::array<double, 4> exact = integrateSegment(tf, 0, 100, length, 20000);
+    const std::array<float, 4>& e = table.at(0, 100);
+    const double alpha = 1.0 - std::exp(-e[3] * length);
+    EXPECT_NEAR(alpha, exact[3], 1e-5);
+    const double error = std::abs(e[0] / e[3] * alpha - exact[0]);
+    EXPECT_LT(error, previous) << "length " << length;
+    previous = error;
+  }
+  EXPECT_LT(previous, 2e-3);
+}
+
 }  // namespace
 }  // namespace octoray::transfer

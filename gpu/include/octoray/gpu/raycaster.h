@@ -14,7 +14,8 @@
 // working set's bricks: the ray's chord through the domain is cut into n = ceil(length / step)
 // equal steps sampled at their midpoints; a leaf of level l samples every 2^(L-1-l)-th of
 // them, each sample standing for the steps it covers, with the opacity corrected to that
-// length (§5.3). Shader variants are compiled from the enabled effects: with shading off no
+// length (§5.3); with pre-integration, the value runs linearly between consecutive samples
+// and each such segment is classified whole (reference_renderer.h). Shader variants are compiled from the enabled effects: with shading off no
 // gradient code exists, with MIP no shading or opacity code.
 //
 // Ray-guided feedback (GigaVoxels, paper 000): with a LeafFeedbackCounts to fill, the pass
@@ -64,6 +65,14 @@ struct RaycastOptions {
   // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
   // (exact: the picture is bit for bit the same; off only to measure what it saves).
   bool cellSkipping = true;
+  // DVR: pre-integrated classification (paper 003 §5.3): each step is a segment from the
+  // previous sample's value to this one's, classified through transfer::SegmentExtinctionTable
+  // (one table for every level's step: it holds extinction per unit distance); removes the
+  // wood-grain rings a sharp TF shows at coarse steps. Cell skipping is off in this variant.
+  bool preintegration = false;
+  // DVR: ray-start jitter, each sample at a per-pixel fraction reference::rayJitter(x, y) of
+  // its step instead of the midpoint (deterministic); the cheap alternative to the above.
+  bool jitter = false;
   // A clipping box in the volume's index space (voxel centres at integers, the domain is
   // [-0.5, dim - 0.5] per axis): rays are cut to the chord inside the box, whose steps are
   // then cut as the whole chord's are. The viewer's crop box.

@@ -20,6 +20,21 @@
 // `earlyTermination` (1.0: only when T is exactly 0, i.e. never approximated). Depth: the
 // distance to the first sample with α' > 0.
 //
+// Pre-integrated DVR (RenderOptions::preintegration, paper 003 §5.3): the chord is cut into
+// the same n steps, but the interpolant is sampled at the n + 1 step boundaries and each step
+// is a segment along which the value runs linearly from its front to its back sample. The
+// part of the segment whose values lie inside the TF's opacity support is integrated through
+// the piecewise-linear TF (sub-steps in double precision, more where the segment spans TF
+// points; transfer::integrateSegment's rule), giving its premultiplied colour and opacity;
+// gradient opacity and boundary enhancement scale the segment's opacity per unit distance;
+// shading (gradient at the segment's midpoint) multiplies the colour by ka + kd|n·l| and adds
+// ks·spec·α. Sharp TFs no longer need a step finer than their features; only the interpolant
+// is approximated (linear along each step).
+//
+// Ray-start jitter (RenderOptions::jitter): each step's sample sits at a fraction j of the
+// step instead of its midpoint, j = rayJitter(x, y) per pixel, the same hash the GPU shader
+// computes: coarse-step wood grain becomes noise.
+//
 // Shading (Material.shade): Phong with a headlight (light and eye along -ray direction, white
 // light of intensity 1): c·(ka + kd·|n·l|) + ks·max(0, r·v)^p, two-sided. The normal is the
 // normalised gradient of the trilinear interpolant, taken by central differences of ±1 voxel
@@ -27,6 +42,14 @@
 // linear part (anisotropic spacing and shear respected). Where the gradient is exactly zero
 // (constant regions) the normal is undefined: diffuse and specular terms are 0, ambient stays;
 // never a NaN.
+//
+// The converged truth (ReferenceRenderer::renderConverged): the picture at a step h, then
+// h/2, h/4, ... until two consecutive pictures differ by at most ConvergenceRule::maxChange
+// in every channel of every pixel and by a change whose PSNR (peak 1) reaches minPsnrDb; the
+// finer one is the truth. Both the midpoint rule and pre-integration converge as O(step^2)
+// on smooth data (tests/gpu/unit_reference_truth.cpp measures the rate against closed-form
+// integrals), so the remaining error is about a third of the last change. Every accuracy
+// number in docs/accuracy.md is against such a picture, never a same-step one.
 //
 // Isosurface (RenderMode::Iso): f(t) - iso is evaluated at the chord's ends and every fine
 // step between; the first bracket with a sign change (either direction: the camera may sit
@@ -72,7 +95,14 @@ struct RenderOptions {
   bool gradientOpacity = true;  // apply the TF's gradient-opacity points (if it has any)
   BoundaryEnhancement boundary;
   double isoValue = 0;  // RenderMode::Iso, physical units
+  bool preintegration = false;  // DVR: integrate each step through the TF (see above)
+  bool jitter = false;          // DVR: per-pixel sample offset rayJitter(x, y) (not with the above)
 };
+
+// The per-pixel offset of ray-start jitter in [0, 1): a 32-bit integer hash of the pixel
+// (column x, row y from the top), the top 24 bits as a fraction (exact in float).
+// raycast.frag.glsl computes the same function.
+float rayJitter(uint32_t x, uint32_t y);
 
 struct RenderStats {
   int64_t samples = 0;  // interpolant evaluations for classification / search
@@ -104,6 +134,24 @@ class ReferenceRenderer {
   // Throws octoray::Error for a camera that cannot form rays or bad options.
   RenderResult render(const Camera& camera, const transfer::TransferFunction& tf,
                       const RenderOptions& options) const;
+
+  // The converged truth: render() driven to convergence by step halving (see
+  // ConvergenceRule). options.stepMm is the first step (0: the default).
+  struct ConvergedResult {
+    RenderResult result;                // the last (finest) picture
+    std::vector<double> stepsMm;        // every step rendered, coarsest first
+    std::vector<double> changePsnrDb;   // between consecutive pictures (stepsMm.size() - 1)
+    std::vector<double> changeMax;      // max |difference| of any RGBA channel, likewise
+    bool converged = false;
+    double estimatedMaxError = 0;       // changeMax.back() / 3: the O(step^2) rule's remainder
+  };
+  struct ConvergenceRule {
+    double maxChange = 1.0 / 1024;      // stop when no channel of any pixel moves more than this
+    double minPsnrDb = 70.0;            // and the change's PSNR (peak 1) reaches this
+    int maxHalvings = 6;
+  };
+  ConvergedResult renderConverged(const Camera& camera, const transfer::TransferFunction& tf,
+                                  const RenderOptions& options, const ConvergenceRule& rule) const;
 
  private:
   const ReferenceVolume& volume_;
