@@ -9,7 +9,8 @@
 // SILHOUETTE_ENHANCEMENT (view-dependent transparency), GRADIENT_POOL (gradients read from the
 // RGBA8 pool instead of 6 value fetches), PREINTEGRATION (DVR classifies each segment between
 // consecutive samples through the pre-integration table; no CELL_SKIPPING with it), JITTER
-// (DVR samples at a per-pixel fraction of their step), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
+// (DVR samples at a per-pixel fraction of their step), IMAGE_ADAPTIVE (the pass is one level of
+// the image pyramid: see "Adaptive sampling in the image plane" below), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
 // BRICK_SIZE, BORDER and GRADIENT_DELTA are numbers.
 //
 // Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
@@ -26,9 +27,28 @@ layout(std430, binding = 2) readonly buffer TfPoints { vec4 tfPoints[]; };
 // Ray-guided feedback (GigaVoxels): per leaf record, [0] rays that sampled the leaf before
 // terminating, [1] rays that wanted finer data there (voxels projecting above uLodPixels).
 layout(std430, binding = 4) buffer Feedback { uint feedback[]; };
+uniform float uLodPixels;
+#endif
+#if defined(FEEDBACK) || defined(IMAGE_ADAPTIVE)
 uniform float uLeafVoxelMm;  // the leaf level's largest voxel edge (mm)
 uniform float uPixelScale;   // perspective: pixel size per mm of depth; orthographic: mm per pixel
-uniform float uLodPixels;
+#endif
+#ifdef IMAGE_ADAPTIVE
+// Adaptive sampling in the image plane (Kraus et al. 2007, paper 002), coarse to fine: pixel
+// (x, y) of pyramid level l is the ray through image pixel (2^l x, 2^l y). The coarsest level
+// casts every ray; on each finer one a pixel whose ray the level above cast is copied, and the
+// others are interpolated linearly between the two or four nearest pixels of the level above
+// unless the 2 x 2 pixels of the level above around them differ by more than the error bound
+// in any premultiplied channel (then the block's three new rays are cast); the bound is
+// relaxed where the paper's oracle says the data allows it: by d / spacing, where d is the
+// smallest projected voxel (pixels) of the leaves the four rays sampled and spacing = 2^(l+1)
+// is the distance between them.
+uniform float uLevelScale;    // 2^l
+uniform int uSynthesize;      // 0: cast every pixel (the coarsest level)
+uniform sampler2D uCoarseColor, uCoarseAux;  // level l + 1
+uniform float uAdaptiveThreshold;
+// [0] rays cast, [1] samples taken (with STATS)
+layout(std430, binding = 5) buffer AdaptiveCounters { uint adaptiveCounters[]; };
 #endif
 #ifdef STATS
 layout(std430, binding = 3) buffer Touched { uint touched[]; };
@@ -80,7 +100,9 @@ uniform vec3 uSilhouette;     // kC, kS, kE
 uniform float uIsoValue;
 
 layout(location = 0) out vec4 outColor;  // premultiplied
-layout(location = 1) out vec4 outAux;    // depth of the first contribution (mm), value, 0, 0
+// depth of the first contribution (mm), value; IMAGE_ADAPTIVE: the oracle's d (pixels) and the
+// pixel's depth-buffer value
+layout(location = 1) out vec4 outAux;
 #ifdef STATS
 layout(location = 2) out vec4 outStats;  // samples, contributing, leaves visited, data leaves
 #endif
@@ -218,8 +240,53 @@ vec3 phong(vec3 color, vec3 gradient, vec3 rayDir) {
 #endif
 
 void main() {
+#ifdef IMAGE_ADAPTIVE
+  if (uSynthesize != 0) {
+    // Pixel (x, y) of this level lies at pixel (x / 2, y / 2) of the level above when both
+    // are even (its ray was cast there: copied), else midway between two or four of them.
+    ivec2 size = textureSize(uCoarseColor, 0);
+    ivec2 xy = ivec2(gl_FragCoord.xy);
+    ivec2 p0 = xy / 2;
+    ivec2 odd = xy - 2 * p0;
+    ivec2 p1 = min(p0 + odd, size - 1);
+    vec4 c00 = texelFetch(uCoarseColor, p0, 0), c10 = texelFetch(uCoarseColor, ivec2(p1.x, p0.y), 0);
+    vec4 c01 = texelFetch(uCoarseColor, ivec2(p0.x, p1.y), 0), c11 = texelFetch(uCoarseColor, p1, 0);
+    vec4 a00 = texelFetch(uCoarseAux, p0, 0), a10 = texelFetch(uCoarseAux, ivec2(p1.x, p0.y), 0);
+    vec4 a01 = texelFetch(uCoarseAux, ivec2(p0.x, p1.y), 0), a11 = texelFetch(uCoarseAux, p1, 0);
+    bool copy = odd == ivec2(0);
+    // The three other pixels of the 2 x 2 block decide together, from the 2 x 2 coarse pixels
+    // around the block: neighbouring pixels cast or interpolate together, as SIMD lanes and
+    // GPU warps run them.
+    ivec2 q1 = min(p0 + 1, size - 1);
+    vec4 b10 = texelFetch(uCoarseColor, ivec2(q1.x, p0.y), 0), b01 = texelFetch(uCoarseColor, ivec2(p0.x, q1.y), 0);
+    vec4 b11 = texelFetch(uCoarseColor, q1, 0);
+    vec4 spread = max(max(c00, b10), max(b01, b11)) - min(min(c00, b10), min(b01, b11));
+    float contrast = max(max(spread.r, spread.g), max(spread.b, spread.a));
+    float d = min(min(a00.z, texelFetch(uCoarseAux, ivec2(q1.x, p0.y), 0).z),
+                  min(texelFetch(uCoarseAux, ivec2(p0.x, q1.y), 0).z, texelFetch(uCoarseAux, q1, 0).z));
+    float spacing = 2.0 * uLevelScale;
+    float bound = uAdaptiveThreshold * max(1.0, min(d / spacing, 16.0));
+    if (copy || contrast <= bound) {
+      outColor = 0.25 * (c00 + c10 + c01 + c11);
+      float depth = min(min(a00.x, a10.x), min(a01.x, a11.x));
+      float value = 0.25 * (a00.y + a10.y + a01.y + a11.y);
+      float fragDepth = max(max(a00.w, a10.w), max(a01.w, a11.w));  // the farthest: never hides a brick
+      outAux = copy ? a00 : vec4(depth, value, min(min(a00.z, a10.z), min(a01.z, a11.z)), fragDepth);
+      gl_FragDepth = outAux.w;
+#ifdef STATS
+      outStats = vec4(0.0);
+#endif
+      return;
+    }
+  }
+  // The ray through the centre of image pixel (2^l x, 2^l y).
+  vec2 pixel = floor(gl_FragCoord.xy) * uLevelScale + 0.5;
+  float oracle = kInfinity;  // the smallest projected voxel (pixels) of the leaves sampled
+#else
+  vec2 pixel = gl_FragCoord.xy;
+#endif
   // The ray through this pixel's centre (Camera::ray; row 0 of the image is the top row).
-  vec2 s = (2.0 * gl_FragCoord.xy / uViewport - 1.0) * uHalfExtent;
+  vec2 s = (2.0 * pixel / uViewport - 1.0) * uHalfExtent;
 #ifdef PERSPECTIVE
   vec3 origin = uEye;
   vec3 dir = normalize(uForward + s.x * uRight + s.y * uUp);
@@ -231,8 +298,11 @@ void main() {
   vec3 dq = uQFromPatient * dir;
 
   outColor = vec4(0.0);
-  outAux = vec4(kInfinity, 0.0, 0.0, 0.0);
+  outAux = vec4(kInfinity, 0.0, kInfinity, 1.0);
   gl_FragDepth = 1.0;
+#ifdef IMAGE_ADAPTIVE
+  atomicAdd(adaptiveCounters[0], 1u);
+#endif
 #ifdef STATS
   vec4 stats = vec4(0.0);
   outStats = stats;
@@ -266,7 +336,7 @@ void main() {
   vec3 accum = vec3(0.0);
 #ifdef JITTER
   // Where in its step each sample sits (0.5: the midpoint).
-  float jit = rayJitter(uint(gl_FragCoord.x), uint(uViewport.y) - 1u - uint(gl_FragCoord.y));
+  float jit = rayJitter(uint(pixel.x), uint(uViewport.y) - 1u - uint(pixel.y));
 #else
   float jit = 0.5;
 #endif
@@ -336,8 +406,25 @@ void main() {
       vec3 dataMin = floor(boxMin / dataDim) * dataDim;
       int levelsUp = uLeafLevel - level + dataUp;
       float levelScale = exp2(float(levelsUp));
+#ifdef IMAGE_ADAPTIVE
+      {
+#ifdef PERSPECTIVE
+        float pixelMm = max(t * dot(dir, uForward), 1e-6) * uPixelScale;
+#else
+        float pixelMm = uPixelScale;
+#endif
+        oracle = min(oracle, uLeafVoxelMm * levelScale / pixelMm);  // image pixels
+      }
+#endif
 #ifdef FEEDBACK
-      atomicAdd(feedback[record / 4u], 1u);
+#ifdef IMAGE_ADAPTIVE
+      // A ray of pyramid level l stands for up to 4^l pixels (conservative: counting more
+      // pixels keeps a brick, never drops one).
+      uint rayWeight = uint(uLevelScale * uLevelScale);
+#else
+      const uint rayWeight = 1u;
+#endif
+      atomicAdd(feedback[record / 4u], rayWeight);
       if (levelsUp > 0) {
 #ifdef PERSPECTIVE
         float footprint = max(t * dot(dir, uForward), 1e-6) * uPixelScale;
@@ -345,7 +432,7 @@ void main() {
         float footprint = uPixelScale;
 #endif
         if (uLodPixels <= 0.0 || uLeafVoxelMm * levelScale > uLodPixels * footprint) {
-          atomicAdd(feedback[record / 4u + 1u], 1u);
+          atomicAdd(feedback[record / 4u + 1u], rayWeight);
         }
       }
 #endif
@@ -663,6 +750,13 @@ void main() {
     gl_FragDepth = clamp((z - uNear) / (uFar - uNear), 0.0, 1.0);
 #endif
   }
+#ifdef IMAGE_ADAPTIVE
+  outAux.z = oracle;
+  outAux.w = gl_FragDepth;
+#ifdef STATS
+  atomicAdd(adaptiveCounters[1], uint(stats.x));
+#endif
+#endif
 #ifdef STATS
   outStats = stats;
 #endif

@@ -52,7 +52,16 @@ struct Raycaster::Impl {
   GlTexture tfNonZero{GL_TEXTURE_1D};   // entries of tfTable with opacity, counted below i
   GlTexture preintegration{GL_TEXTURE_2D};  // transfer::SegmentExtinctionTable
   std::array<float, 2> preintegrationRange{0, 1};
-  GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer, feedbackBuffer;
+  GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer, feedbackBuffer, adaptiveBuffer;
+  // Image-adaptive sampling: levels 1 .. L of the image pyramid (colour, aux), level 0 being
+  // the targets below.
+  struct PyramidLevel {
+    GlTexture color{GL_TEXTURE_2D}, aux{GL_TEXTURE_2D};
+    GlFramebuffer fbo;
+    int width = 0, height = 0;
+  };
+  std::vector<std::unique_ptr<PyramidLevel>> pyramid;
+  void ensurePyramid(int width, int height, int levels);
   GlVertexArray vao;
   GlFramebuffer fbo;
   std::vector<GlTexture> targets;  // colour, aux, stats, depth
@@ -155,6 +164,33 @@ void Raycaster::Impl::ensureTargets(int width, int height) {
   throwOnGlError("allocating render targets");
 }
 
+void Raycaster::Impl::ensurePyramid(int width, int height, int levels) {
+  bool same = static_cast<int>(pyramid.size()) == levels;
+  for (int l = 1; same && l <= levels; ++l) {
+    const PyramidLevel& p = *pyramid[static_cast<std::size_t>(l - 1)];
+    same = p.width == (width + (1 << l) - 1) >> l && p.height == (height + (1 << l) - 1) >> l;
+  }
+  if (same) return;
+  pyramid.clear();
+  for (int l = 1; l <= levels; ++l) {
+    auto p = std::make_unique<PyramidLevel>();
+    p->width = (width + (1 << l) - 1) >> l;
+    p->height = (height + (1 << l) - 1) >> l;
+    glTextureStorage2D(p->color.id(), 1, GL_RGBA32F, p->width, p->height);
+    glTextureStorage2D(p->aux.id(), 1, GL_RGBA32F, p->width, p->height);
+    glNamedFramebufferTexture(p->fbo.id(), GL_COLOR_ATTACHMENT0, p->color.id(), 0);
+    glNamedFramebufferTexture(p->fbo.id(), GL_COLOR_ATTACHMENT1, p->aux.id(), 0);
+    const GLenum buffers[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
+    glNamedFramebufferDrawBuffers(p->fbo.id(), 2, buffers);
+    const GLenum status = glCheckNamedFramebufferStatus(p->fbo.id(), GL_FRAMEBUFFER);
+    if (status != GL_FRAMEBUFFER_COMPLETE) {
+      throw Error("", fmt::format("GPU raycaster: image pyramid level {} incomplete (0x{:x})", l, status));
+    }
+    pyramid.push_back(std::move(p));
+  }
+  throwOnGlError("allocating the image pyramid");
+}
+
 GlProgram& Raycaster::Impl::program(const std::vector<std::string>& defs) {
   std::string key;
   for (const std::string& d : defs) key += d + ";";
@@ -209,6 +245,7 @@ std::vector<std::string> Raycaster::Impl::defines(const transfer::TransferFuncti
   d.push_back(layout.border() >= 2 ? "GRADIENT_DELTA 1.0" : "GRADIENT_DELTA 0.5");
   if (o.stats) d.emplace_back("STATS");
   if (feedback) d.emplace_back("FEEDBACK");
+  if (o.imageAdaptive > 0) d.emplace_back("IMAGE_ADAPTIVE");
   if (projection == Projection::Perspective) d.emplace_back("PERSPECTIVE");
   return d;
 }
@@ -395,6 +432,12 @@ void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
   if (!(options.lodPixels >= 0 && std::isfinite(options.lodPixels))) {
     throw Error("", fmt::format("--lod-pixels {} must be 0 or positive", options.lodPixels));
   }
+  if (!(options.imageAdaptive >= 0 && std::isfinite(options.imageAdaptive))) {
+    throw Error("", fmt::format("image-adaptive threshold {} must be 0 (off) or positive", options.imageAdaptive));
+  }
+  if (options.imageAdaptive > 0 && !(options.imageAdaptiveLevels >= 1 && options.imageAdaptiveLevels <= 4)) {
+    throw Error("", fmt::format("image-adaptive levels {} must be in [1, 4]", options.imageAdaptiveLevels));
+  }
   if (options.clip.enabled) {
     for (int a = 0; a < 3; ++a) {
       const double lo = options.clip.lo[static_cast<std::size_t>(a)], hi = options.clip.hi[static_cast<std::size_t>(a)];
@@ -536,10 +579,9 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, im.leafBuffer.id());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, im.tfPointBuffer.id());
   if (options.stats) glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, im.touchedBuffer.id());
-  if (feedback) {
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, im.feedbackBuffer.id());
-    // Ray-guided feedback (GigaVoxels): a ray wants finer data in a leaf whose voxels project
-    // larger than lodPixels where the ray enters it.
+  const bool adaptive = options.imageAdaptive > 0;
+  if (feedback || adaptive) {
+    // Projected voxel sizes: the ray-guided feedback's and the image-adaptive oracle's.
     double voxelMm = 0;
     for (int a = 0; a < 3; ++a) voxelMm = std::max(voxelMm, length(patientFromIndex.column(a)));
     const double pixelScale = camera.projection == Projection::Perspective
@@ -547,7 +589,19 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
                                   : camera.orthoHeightMm / camera.height;
     glUniform1f(prog.uniform("uLeafVoxelMm"), static_cast<float>(voxelMm));
     glUniform1f(prog.uniform("uPixelScale"), static_cast<float>(pixelScale));
+  }
+  if (feedback) {
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, im.feedbackBuffer.id());
+    // Ray-guided feedback (GigaVoxels): a ray wants finer data in a leaf whose voxels project
+    // larger than lodPixels where the ray enters it.
     glUniform1f(prog.uniform("uLodPixels"), static_cast<float>(options.lodPixels));
+  }
+  if (adaptive) {
+    const uint32_t zeros[2] = {0, 0};
+    glNamedBufferData(im.adaptiveBuffer.id(), sizeof(zeros), zeros, GL_DYNAMIC_READ);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 5, im.adaptiveBuffer.id());
+    glUniform1f(prog.uniform("uAdaptiveThreshold"), static_cast<float>(options.imageAdaptive));
+    im.ensurePyramid(width, height, options.imageAdaptiveLevels);
   }
 
   glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
@@ -563,6 +617,32 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
 
   glFinish();
   const auto drawStart = std::chrono::steady_clock::now();
+  if (adaptive) {
+    // The pyramid's levels, coarsest first, each interpolating from the one above where it
+    // may; level 0 (the image) is drawn below into the frame's targets.
+    const int levels = options.imageAdaptiveLevels;
+    for (int l = levels; l >= 1; --l) {
+      const Impl::PyramidLevel& p = *im.pyramid[static_cast<std::size_t>(l - 1)];
+      glBindFramebuffer(GL_FRAMEBUFFER, p.fbo.id());
+      glViewport(0, 0, p.width, p.height);
+      glUniform1f(prog.uniform("uLevelScale"), static_cast<float>(1 << l));
+      glUniform1i(prog.uniform("uSynthesize"), l < levels ? 1 : 0);
+      if (l < levels) {
+        const Impl::PyramidLevel& above = *im.pyramid[static_cast<std::size_t>(l)];
+        glBindTextureUnit(6, above.color.id());
+        glBindTextureUnit(7, above.aux.id());
+      }
+      glUniform1i(prog.uniform("uCoarseColor"), 6);
+      glUniform1i(prog.uniform("uCoarseAux"), 7);
+      glDrawArrays(GL_TRIANGLES, 0, 3);
+    }
+    glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
+    glViewport(0, 0, width, height);
+    glUniform1f(prog.uniform("uLevelScale"), 1.0f);
+    glUniform1i(prog.uniform("uSynthesize"), 1);
+    glBindTextureUnit(6, im.pyramid[0]->color.id());
+    glBindTextureUnit(7, im.pyramid[0]->aux.id());
+  }
   if (tiles == nullptr || tiles->tiles.empty()) {
     glDrawArrays(GL_TRIANGLES, 0, 3);
   } else {
@@ -626,6 +706,15 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
         if (c[2] > 0) ++stats.pixelsCovered;
       }
     }
+  }
+  if (adaptive) {
+    uint32_t counted[2] = {0, 0};
+    glGetNamedBufferSubData(im.adaptiveBuffer.id(), 0, sizeof(counted), counted);
+    stats.raysCast = counted[0];
+    if (options.stats) stats.samplesTaken = counted[1];
+  } else {
+    stats.raysCast = static_cast<int64_t>(pixels);
+    if (options.stats) stats.samplesTaken = static_cast<int64_t>(samples);
   }
   if (options.stats) {
     const double covered = std::max<double>(1.0, static_cast<double>(stats.pixelsCovered));

@@ -24,6 +24,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <filesystem>
@@ -40,6 +41,7 @@
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gpu_renderer.h"
 #include "octoray/gpu/image_io.h"
+#include "octoray/gpu/image_metrics.h"
 #include "octoray/gpu/reference/reference_renderer.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/volume/store_builder.h"
@@ -59,7 +61,8 @@ struct Arguments {
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
   bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
   bool gradientPool = false, noCellSkipping = false, jitter = false, converge = false;
-  std::string preintegration = "off";
+  std::string preintegration = "off", imageAdaptive = "off";
+  int imageAdaptiveLevels = 2;
   double convergeMaxChange = 1.0 / 1024, convergePsnr = 70;
   int convergeHalvings = 6;
   std::string mip = "exact";
@@ -239,6 +242,7 @@ nlohmann::json frameRecord(const gpu::Frame& frame, double ms) {
           {"selectMs", s.selectMs},
           {"uploadMs", s.uploadMs},
           {"drawMs", s.drawMs},
+          {"raysCast", s.raysCast},
           {"feedbackMs", s.feedbackMs},
           {"workingSetBricks", s.workingSetBricks},
           {"visibleLeaves", w.visibleLeaves},
@@ -509,6 +513,18 @@ int runGpu(const Arguments& a) {
   options.cellSkipping = !a.noCellSkipping;
   options.preintegration = shared.preintegration;
   options.jitter = shared.jitter;
+  if (a.imageAdaptive == "on") {
+    options.imageAdaptive = gpu::kImageAdaptiveDefaultThreshold;
+  } else if (a.imageAdaptive != "off") {
+    char* end = nullptr;
+    options.imageAdaptive = std::strtod(a.imageAdaptive.c_str(), &end);
+    if (end == a.imageAdaptive.c_str() || *end != '\0' || !(options.imageAdaptive > 0) ||
+        !std::isfinite(options.imageAdaptive)) {
+      throw Error("", fmt::format("--image-adaptive \"{}\": expected off, on or a positive error bound",
+                                  a.imageAdaptive));
+    }
+  }
+  options.imageAdaptiveLevels = a.imageAdaptiveLevels;
   options.mip = a.mip == "sampled" ? gpu::RaycastOptions::MipMethod::Sampled
                                    : gpu::RaycastOptions::MipMethod::Exact;
 
@@ -558,6 +574,19 @@ int runGpu(const Arguments& a) {
       record["leavesPerPixel"] = counted.stats.leavesPerPixel;
       record["bricksTouched"] = counted.stats.bricksTouched;
       record["pixelsCovered"] = counted.stats.pixelsCovered;
+      record["samplesTaken"] = counted.stats.samplesTaken;
+      if (options.imageAdaptive > 0) {
+        // The error image-adaptive sampling makes: against every pixel cast, same frame.
+        gpu::RaycastOptions full = options;
+        full.imageAdaptive = 0;
+        full.stats = false;
+        const gpu::Frame exact = renderer.render(view, tf, full);
+        const gpu::ImageMetrics m = gpu::compare(exact.image, counted.image);
+        record["imageAdaptiveError"] = {{"psnrDb", std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json("inf")},
+                                        {"maxAbsError", m.maxAbsError},
+                                        {"raysFraction", static_cast<double>(counted.stats.raysCast) /
+                                                             (static_cast<double>(view.width) * view.height)}};
+      }
     }
     frames.push_back(std::move(record));
     if (f == 0) first = std::move(frame);
@@ -702,6 +731,14 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--jitter", a.jitter,
                "DVR: each sample at a hashed per-pixel fraction of its step (deterministic)");
+  app.add_option("--image-adaptive", a.imageAdaptive,
+                 "GPU: adaptive sampling in the image plane: off (every pixel), on (error bound "
+                 "0.02) or an error bound (largest channel difference between coarse rays)")
+      ->capture_default_str();
+  app.add_option("--image-adaptive-levels", a.imageAdaptiveLevels,
+                 "GPU: pyramid levels above the image (coarsest rays every 2^N pixels)")
+      ->check(CLI::Range(1, 4))
+      ->capture_default_str();
   app.add_flag("--converge", a.converge,
                "reference: the converged truth (the step halved until the picture stops "
                "changing; exit 3 if it does not); --step is the first step");
@@ -747,7 +784,8 @@ int main(int argc, char** argv) {
                                   "--gradient-pool", "--boundary", "--silhouette", "--clip",
                                   "--no-cell-skipping", "--mip", "--cache-mib",
                                   "--upload-mib-per-frame", "--visibility",
-                                  "--visibility-threshold", "--path", "--stats"}) {
+                                  "--visibility-threshold", "--path", "--stats",
+                                  "--image-adaptive", "--image-adaptive-levels"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

@@ -296,6 +296,10 @@ TEST_F(RaycasterTest, SampledMipNeverExceedsTheExactMaximum) {
       ++unsampled;
       continue;
     }
+    // Below the TF's first opacity the MIP picture is black whatever the maximum, and the
+    // working set does not refine nodes whose range stays there (the MIP threshold): the
+    // maxima are compared where they are seen.
+    if (!(reference::classify(tf, exact.value[i]).alpha > 0)) continue;
     ++hits;
     EXPECT_LE(sampled.value[i], exact.value[i] + filtering) << "pixel " << i;
     lower += sampled.value[i] < exact.value[i] - filtering ? 1 : 0;

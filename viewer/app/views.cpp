@@ -99,7 +99,12 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   camera.width = interactive ? std::max(8, width / 2) : width;
   camera.height = interactive ? std::max(8, height / 2) : height;
   gpu::RaycastOptions o = raycastOptions(s);
-  if (interactive) o.lodPixels = std::max(2.0, 2.0 * s.lodPixels);
+  if (interactive) {
+    // Interactive quality: half resolution, coarser levels, and rays only where the picture
+    // has detail (image-plane adaptive sampling at its default bound).
+    o.lodPixels = std::max(2.0, 2.0 * s.lodPixels);
+    o.imageAdaptive = gpu::kImageAdaptiveDefaultThreshold;
+  }
   const std::string key = fmt::format("{}|{}", content, interactive);
   if (key != lastKey_) {
     converged_ = false;

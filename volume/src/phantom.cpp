@@ -257,6 +257,22 @@ inline uint32_t hash32(uint32_t x) {
   return x;
 }
 
+// The band-limited phantom paints each row at this many points of its voxels, one per
+// stratum on every axis (a Latin hypercube: sub-row s samples stratum (a s + b) mod N of
+// axis x, y, z with a coprime to N).
+constexpr int kSubRows = 16;
+constexpr int subRowStratum(int axis, int s) {
+  constexpr int a[3] = {1, 5, 11}, b[3] = {0, 3, 7};
+  return (a[axis] * s + b[axis]) % kSubRows;
+}
+
+// Noise before the point-spread function: triangular in [-64, 64] HU (standard deviation
+// about 26 HU), which the 1-voxel Gaussian turns into correlated noise of about 4 HU.
+inline int32_t correlatedNoiseHu(uint32_t h) {
+  const int32_t a = static_cast<int32_t>(h & 0xffu), b = static_cast<int32_t>((h >> 8) & 0xffu);
+  return (a - b) / 4;
+}
+
 // Triangular noise in [-11, 11] HU (standard deviation about 5 HU).
 inline int32_t noiseHu(uint32_t h) {
   const int32_t a = static_cast<int32_t>(h & 0xffu), b = static_cast<int32_t>((h >> 8) & 0xffu);
@@ -314,13 +330,20 @@ class HeadPhantom {
   void generate(int64_t firstSlice, int64_t sliceCount, T* out) const;
 
  private:
+  template <typename T>
+  void generateHard(int64_t firstSlice, int64_t sliceCount, T* out) const;
+  template <typename T>
+  void generateBlurred(int64_t firstSlice, int64_t sliceCount, T* out) const;
+
   struct Row {
     int32_t* hu;
     int64_t j, k;
     double y, z;
+    double dx = 0;  // where in its voxel the row samples x (normalised units; 0: the centre)
   };
 
-  // Voxel indices [begin, end) of this row whose x lies within halfWidth of centreX.
+  // Voxel indices [begin, end) of this row whose x lies within halfWidth of centreX (pass
+  // centreX - row.dx for a row sampling off-centre).
   std::pair<int64_t, int64_t> span(double centreX, double halfWidth) const;
   void fill(const Row& row, double centreX, double halfWidth, int32_t value) const;
 
@@ -341,9 +364,21 @@ class HeadPhantom {
   GyroidTables trabecular_, folds_, fineFolds_;
   std::vector<Tube> tubes_;
   std::vector<uint8_t> discSlice_;  // per slice: 1 where the spine holds a disc
+  std::vector<float> psf_;          // normalised Gaussian taps, 2 r + 1 (empty: hard edges)
 };
 
 HeadPhantom::HeadPhantom(const PhantomOptions& options) : dims_(options.dims), seed_(options.seed) {
+  if (options.psfSigmaVoxels > 0) {
+    const double sigma = options.psfSigmaVoxels;
+    const int radius = static_cast<int>(std::ceil(3.0 * sigma));
+    double sum = 0;
+    std::vector<double> taps;
+    for (int d = -radius; d <= radius; ++d) {
+      taps.push_back(std::exp(-0.5 * d * d / (sigma * sigma)));
+      sum += taps.back();
+    }
+    for (double t : taps) psf_.push_back(static_cast<float>(t / sum));
+  }
   for (int a = 0; a < 3; ++a) {
     const int64_t n = dims_[a];
     coords_[a] = normalisedCoords(n);
@@ -411,7 +446,7 @@ std::pair<int64_t, int64_t> HeadPhantom::span(double centreX, double halfWidth) 
 }
 
 void HeadPhantom::fill(const Row& row, double centreX, double halfWidth, int32_t value) const {
-  const auto [begin, end] = span(centreX, halfWidth);
+  const auto [begin, end] = span(centreX - row.dx, halfWidth);
   std::fill(row.hu + begin, row.hu + end, value);
 }
 
@@ -483,14 +518,14 @@ void HeadPhantom::applyTextures(const Row& row) const {
       hu[i] = pick(hu[i] == mark, value, hu[i]);
     }
   };
-  const auto [skullBegin, skullEnd] = span(kCranium.cx, kCranium.halfWidth(row.y, row.z));
+  const auto [skullBegin, skullEnd] = span(kCranium.cx - row.dx, kCranium.halfWidth(row.y, row.z));
   spongy(skullBegin, skullEnd, kDiploeMark, 950.0f, 550.0f);
   const auto [spineBegin, spineEnd] =
-      span(kVertebralBody.cx, kVertebralBody.halfWidth(row.y, row.z));
+      span(kVertebralBody.cx - row.dx, kVertebralBody.halfWidth(row.y, row.z));
   spongy(spineBegin, spineEnd, kSpongyMark, 520.0f, 380.0f);
 
   const auto [brainBegin, brainEnd] =
-      span(kCranium.cx, kCranium.halfWidth(row.y, row.z, kCortexInset));
+      span(kCranium.cx - row.dx, kCranium.halfWidth(row.y, row.z, kCortexInset));
   // Folds: a gyroid plus a mirrored one at a golden-ratio frequency, so the pattern never
   // repeats visibly. Grey matter reaches into the white core where the field is high, CSF
   // fills the deepest sulci.
@@ -584,6 +619,15 @@ void HeadPhantom::finishRow(const Row& row, T* out) const {
 
 template <typename T>
 void HeadPhantom::generate(int64_t firstSlice, int64_t sliceCount, T* out) const {
+  if (psf_.empty()) {
+    generateHard(firstSlice, sliceCount, out);
+  } else {
+    generateBlurred(firstSlice, sliceCount, out);
+  }
+}
+
+template <typename T>
+void HeadPhantom::generateHard(int64_t firstSlice, int64_t sliceCount, T* out) const {
   const int64_t rowLength = dims_[0], rowsPerSlice = dims_[1];
   const int64_t rows = sliceCount * rowsPerSlice;
   // Chunks of at least ~32 K voxels keep scheduling overhead negligible for narrow volumes.
@@ -598,6 +642,100 @@ void HeadPhantom::generate(int64_t firstSlice, int64_t sliceCount, T* out) const
                         finishRow(row, out + r * rowLength);
                       }
                     });
+}
+
+// The band-limited phantom: the painted anatomy (with partial volume) plus correlated noise,
+// convolved with the separable Gaussian psf_ (edges replicated, so every voxel is a function
+// of its index and the seed alone), rounded, then the white noise. Output slices go in chunks:
+// each chunk paints the slices its taps reach (int16) once, then blurs one output slice at a
+// time along z, y and x in float.
+template <typename T>
+void HeadPhantom::generateBlurred(int64_t firstSlice, int64_t sliceCount, T* out) const {
+  const int64_t nx = dims_[0], ny = dims_[1], nz = dims_[2];
+  const int64_t sliceSamples = nx * ny;
+  const int radius = static_cast<int>(psf_.size() / 2);
+  // Chunks of output slices whose painted slices stay near 128 MB.
+  const int64_t chunk = std::clamp<int64_t>((int64_t{1} << 26) / std::max<int64_t>(1, sliceSamples) - 2 * radius,
+                                            1, 32);
+  std::vector<int16_t> painted;
+  for (int64_t c0 = firstSlice; c0 < firstSlice + sliceCount; c0 += chunk) {
+    const int64_t c1 = std::min(c0 + chunk, firstSlice + sliceCount);
+    const int64_t p0 = std::max<int64_t>(0, c0 - radius), p1 = std::min(nz, c1 + radius);
+    painted.resize(static_cast<std::size_t>((p1 - p0) * sliceSamples));
+    const int64_t rows = (p1 - p0) * ny;
+    const int64_t grain = std::max<int64_t>(1, (int64_t{1} << 15) / nx);
+    tbb::parallel_for(tbb::blocked_range<int64_t>(0, rows, grain), [&](const tbb::blocked_range<int64_t>& range) {
+      std::vector<int32_t> scratch(static_cast<std::size_t>(nx)), sum(static_cast<std::size_t>(nx));
+      for (int64_t r = range.begin(); r < range.end(); ++r) {
+        const int64_t j = r % ny, k = p0 + r / ny;
+        // Partial volume: the row painted at kSubRows points of its voxels' extent (a Latin
+        // hypercube in x, y and z, shifted per row by a hash), averaged. Point sampling at the
+        // voxel centres alone quantises every surface to whole voxels along the axis its
+        // normal is closest to, and those terraces survive any blur. (The shift does not
+        // depend on the seed: seeds change the noise only.)
+        const uint32_t key = rowKey(seed_ ^ 0x5bd1e995u, j, k);
+        const double shift = (hash32(rowKey(0x68e31da4u, j, k)) >> 8) * (1.0 / 16777216.0);
+        std::fill(sum.begin(), sum.end(), 0);
+        for (int s = 0; s < kSubRows; ++s) {
+          const auto offset = [&](int stratum, int64_t n) {
+            return ((stratum + shift) / kSubRows - 0.5) * 2.0 / static_cast<double>(n);
+          };
+          Row row{scratch.data(), j, k, coords_[1][j] + offset(subRowStratum(1, s), ny),
+                  coords_[2][k] + offset(subRowStratum(2, s), nz)};
+          row.dx = offset(subRowStratum(0, s), nx);
+          paintRow(row);
+          for (int64_t i = 0; i < nx; ++i) sum[static_cast<std::size_t>(i)] += scratch[static_cast<std::size_t>(i)];
+        }
+        int16_t* dst = painted.data() + r * nx;
+        for (int64_t i = 0; i < nx; ++i) {
+          const uint32_t h = hash32(key ^ (static_cast<uint32_t>(i) * 0x9e3779b9u));
+          const int32_t total = sum[static_cast<std::size_t>(i)];
+          const int32_t mean = (total + (total >= 0 ? kSubRows / 2 : -kSubRows / 2)) / kSubRows;
+          dst[i] = static_cast<int16_t>(std::clamp(mean + correlatedNoiseHu(h), -2048, 4095));
+        }
+      }
+    });
+    tbb::parallel_for(c0, c1, [&](int64_t k) {
+      std::vector<float> a(static_cast<std::size_t>(sliceSamples)), b(static_cast<std::size_t>(sliceSamples));
+      // z: the taps' slices, edges replicated.
+      for (int d = -radius; d <= radius; ++d) {
+        const int64_t kk = std::clamp<int64_t>(k + d, 0, nz - 1);
+        const int16_t* src = painted.data() + (kk - p0) * sliceSamples;
+        const float w = psf_[static_cast<std::size_t>(d + radius)];
+        for (int64_t n = 0; n < sliceSamples; ++n) a[static_cast<std::size_t>(n)] += w * static_cast<float>(src[n]);
+      }
+      // y, then x.
+      for (int64_t j = 0; j < ny; ++j) {
+        float* dst = b.data() + j * nx;
+        std::fill(dst, dst + nx, 0.0f);
+        for (int d = -radius; d <= radius; ++d) {
+          const int64_t jj = std::clamp<int64_t>(j + d, 0, ny - 1);
+          const float* src = a.data() + jj * nx;
+          const float w = psf_[static_cast<std::size_t>(d + radius)];
+          for (int64_t i = 0; i < nx; ++i) dst[i] += w * src[i];
+        }
+      }
+      std::vector<int32_t> hu(static_cast<std::size_t>(nx));
+      std::vector<float> padded(static_cast<std::size_t>(nx + 2 * radius)), sum(static_cast<std::size_t>(nx));
+      for (int64_t j = 0; j < ny; ++j) {
+        const float* src = b.data() + j * nx;
+        for (int64_t i = -radius; i < nx + radius; ++i) {
+          padded[static_cast<std::size_t>(i + radius)] = src[std::clamp<int64_t>(i, 0, nx - 1)];
+        }
+        std::fill(sum.begin(), sum.end(), 0.0f);
+        for (int d = 0; d <= 2 * radius; ++d) {
+          const float w = psf_[static_cast<std::size_t>(d)];
+          const float* p = padded.data() + d;
+          for (int64_t i = 0; i < nx; ++i) sum[static_cast<std::size_t>(i)] += w * p[i];
+        }
+        for (int64_t i = 0; i < nx; ++i) {
+          hu[static_cast<std::size_t>(i)] = static_cast<int32_t>(std::lround(sum[static_cast<std::size_t>(i)]));
+        }
+        const Row row{hu.data(), j, k, coords_[1][j], coords_[2][k]};
+        finishRow(row, out + ((k - firstSlice) * ny + j) * nx);
+      }
+    });
+  }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -615,6 +753,10 @@ void checkOptions(const PhantomOptions& options) {
                   fmt::format("spacing {},{},{} mm: each must be positive", options.spacingMm.x,
                               options.spacingMm.y, options.spacingMm.z));
     }
+  }
+  if (!(options.psfSigmaVoxels >= 0 && options.psfSigmaVoxels <= 4)) {
+    throw Error("phantom", fmt::format("point-spread function sigma {} voxels: must be in [0, 4]",
+                                       options.psfSigmaVoxels));
   }
   const double samples = static_cast<double>(options.dims[0]) *
                          static_cast<double>(options.dims[1]) *
@@ -634,7 +776,9 @@ VolumeInfo phantomInfo(const PhantomOptions& options) {
   info.format = "phantom";
   info.sourcePath = "phantom";
   info.modality = "CT";
-  info.description = fmt::format("octoray phantom seed {}", options.seed);
+  info.description = options.psfSigmaVoxels > 0
+                         ? fmt::format("octoray phantom seed {}", options.seed)
+                         : fmt::format("octoray phantom seed {} (hard edges)", options.seed);
   info.unit = "HU";
   info.integerValues = true;
   info.valueLowerBound = -1024;

@@ -31,12 +31,21 @@ int main(int argc, char** argv) {
   std::string spacing = "0.5,0.5,0.5";
   uint64_t seed = 1;
   int threads = 0;
+  double psfSigma = 1.0;
+  bool hardEdges = false;
   app.add_option("-o,--output", output, "header to write (.nhdr or .nrrd); data goes to .raw")
       ->required();
   app.add_option("--size", size, "columns x rows x slices")->capture_default_str();
   app.add_option("--spacing", spacing, "column, row and slice spacing in mm")
       ->capture_default_str();
   app.add_option("--seed", seed, "seed of the noise")->capture_default_str();
+  auto* psf = app.add_option("--psf-sigma", psfSigma,
+                             "Gaussian point-spread function, sigma in voxels (partial-volume "
+                             "boundaries and correlated noise, as a scanner's); 0 = hard edges")
+                  ->check(CLI::Range(0.0, 4.0))
+                  ->capture_default_str();
+  app.add_flag("--hard-edges", hardEdges, "the old hard-edged phantom (same as --psf-sigma 0)")
+      ->excludes(psf);
   app.add_option("--threads", threads, "worker threads (0: all cores)")
       ->check(CLI::NonNegativeNumber);
   try {
@@ -51,6 +60,7 @@ int main(int argc, char** argv) {
   return octoray::cli::runTool("octoray-phantom", [&] {
     octoray::volume::PhantomOptions options;
     options.seed = seed;
+    options.psfSigmaVoxels = hardEdges ? 0.0 : psfSigma;
     options.dims = octoray::cli::parseDims(size, "--size");
     for (int64_t d : options.dims) {
       if (d > 1048576) throw octoray::Error("", fmt::format("--size \"{}\": at most 1048576", size));

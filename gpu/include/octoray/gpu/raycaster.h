@@ -47,6 +47,9 @@ struct Enhancement {
   double kC = 0.0, kS = 1.0, kE = 1.0;
 };
 
+// The error bound --image-adaptive on stands for (docs/accuracy.md: where it stops paying).
+constexpr double kImageAdaptiveDefaultThreshold = 0.02;
+
 struct RaycastOptions {
   RaycastMode mode = RaycastMode::Dvr;
   double stepMm = 0;               // 0: 0.25 x the smallest spacing (the reference's default)
@@ -73,6 +76,12 @@ struct RaycastOptions {
   // DVR: ray-start jitter, each sample at a per-pixel fraction reference::rayJitter(x, y) of
   // its step instead of the midpoint (deterministic); the cheap alternative to the above.
   bool jitter = false;
+  // Adaptive sampling in the image plane (paper 002; raycast.frag.glsl documents the rule):
+  // 0 = off (every pixel cast; exact); > 0 = the error bound (largest difference of any
+  // premultiplied channel between the four coarse rays a pixel would be interpolated from).
+  // imageAdaptiveLevels levels above the image (rays every 2^levels pixels at the top).
+  double imageAdaptive = 0;
+  int imageAdaptiveLevels = 2;
   // A clipping box in the volume's index space (voxel centres at integers, the domain is
   // [-0.5, dim - 0.5] per axis): rays are cut to the chord inside the box, whose steps are
   // then cut as the whole chord's are. The viewer's crop box.
@@ -97,6 +106,10 @@ struct FrameStats {
   double leavesPerPixel = 0;        // leaves visited with non-zero length, empty ones included
   int64_t bricksTouched = 0;        // data leaves any ray sampled
   int64_t pixelsCovered = 0;        // pixels whose ray meets the domain
+  // Rays cast over all levels of the image pyramid (every pixel without image-adaptive
+  // sampling), and the samples they took (with RaycastOptions::stats; else -1).
+  int64_t raysCast = 0;
+  int64_t samplesTaken = -1;
   // The working set's frame (GpuRenderer fills these).
   WorkingSetStats workingSet;
   double feedbackMs = 0;            // planning queries, reading the feedback back, applying it

@@ -89,7 +89,7 @@ struct Session {
   double stepFactor = 1.0;             // x the renderer's default step
   double earlyTermination = 0.99;
   bool shading = true;                 // DVR: Phong shading when the TF asks for it
-  bool interactiveQuality = true;      // half resolution and coarser LOD while moving
+  bool interactiveQuality = true;      // half resolution, coarser LOD, image-adaptive rays while moving
   ClipBox clip;
   // MPR
   WindowLevel wl;

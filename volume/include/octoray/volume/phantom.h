@@ -2,6 +2,13 @@
 // A deterministic synthetic CT-like volume of any size, computed slab by slab: skull shell,
 // brain-like soft tissue, air cavities, vessels, fine high-frequency detail and noise, in HU.
 // Scale tests and benchmarks need no download and no large memory.
+//
+// As a scanner's images, it is band-limited: the painted anatomy (hard tissue boundaries)
+// plus correlated noise is convolved with a Gaussian point-spread function of
+// psfSigmaVoxels (default 1 voxel) on every axis, so boundaries carry a partial-volume ramp
+// and the noise has the blotchy texture of reconstructed CT; white noise (+-11 HU) is added
+// after. psfSigmaVoxels = 0 gives the old hard-edged phantom (white noise only), whose
+// surfaces show terraces at any rendering step.
 
 #include <array>
 #include <cstdint>
@@ -17,6 +24,7 @@ struct PhantomOptions {
   std::array<int64_t, 3> dims{256, 256, 256};
   uint64_t seed = 1;
   Vec3 spacingMm{0.5, 0.5, 0.5};
+  double psfSigmaVoxels = 1.0;  // 0: hard edges; at most 4
 };
 
 // A VolumeSource whose samples are a pure function of (index, seed): any slab can be asked for
