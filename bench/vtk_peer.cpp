@@ -75,6 +75,7 @@ struct Arguments {
   std::string size = "512x512", camera, projection = "perspective", shading = "auto";
   std::optional<double> iso;
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, orbitDegrees = 0;
+  double imageSampleDistance = 1.0;  // CPU mapper: rays every this many pixels, interpolated
   int frames = 1;
   bool json = false, noGradientOpacity = false, offScreen = true;
 };
@@ -250,9 +251,10 @@ vtkSmartPointer<vtkVolumeMapper> makeMapper(const Arguments& a, double stepMm) {
   mapper->LockSampleDistanceToInputSpacingOff();
   mapper->SetSampleDistance(static_cast<float>(stepMm));
   mapper->SetInteractiveSampleDistance(static_cast<float>(stepMm));
-  mapper->SetImageSampleDistance(1.0f);
-  mapper->SetMinimumImageSampleDistance(1.0f);
-  mapper->SetMaximumImageSampleDistance(1.0f);
+  const auto isd = static_cast<float>(a.imageSampleDistance);
+  mapper->SetImageSampleDistance(isd);
+  mapper->SetMinimumImageSampleDistance(isd);
+  mapper->SetMaximumImageSampleDistance(isd);
   mapper->SetBlendMode(blendMode(a.mode));
   return mapper;
 }
@@ -425,6 +427,7 @@ int run(const Arguments& a) {
         {"dims", domain.dims},
         {"scalarType", image->GetScalarTypeAsString()},
         {"stepMm", stepMm},
+        {"imageSampleDistance", a.imageSampleDistance},
         {"width", camera.width},
         {"height", camera.height},
         {"framesMs", framesMs},
@@ -481,6 +484,10 @@ int main(int argc, char** argv) {
   app.add_option("--fov", a.fovY, "vertical field of view in degrees (perspective)")
       ->capture_default_str();
   app.add_option("--camera", a.camera, "camera JSON (eye, target, up, ...) instead of the orbit");
+  app.add_option("--image-sample-distance", a.imageSampleDistance,
+                 "cpu mapper: distance between rays in pixels (VTK interpolates between them)")
+      ->check(CLI::Range(0.5, 8.0))
+      ->capture_default_str();
   app.add_option("--step", a.stepMm, "sample distance in mm (default: half the smallest spacing)")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--shading", a.shading, "auto (the preset's material), on or off")

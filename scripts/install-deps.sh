@@ -15,6 +15,8 @@ packages=(
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libgl-dev libimgui-dev libstb-dev fonts-dejavu-core xvfb xauth
   # tests: GoogleTest, and independent references for DICOM decoding and conversion
   libgtest-dev libgmock-dev libgdcm-tools dcm2niix python3 python3-pydicom python3-numpy python3-pil
+  # benchmarks: plots of bench/plot_accuracy.py
+  python3-matplotlib
 )
 
 missing=()

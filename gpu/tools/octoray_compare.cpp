@@ -1,12 +1,15 @@
 // octoray-compare: how far apart two images are (PNG or OpenEXR, any mix): RMSE, PSNR, SSIM,
 // maximum absolute error and the count of NaN/infinite pixels over premultiplied RGB (the
-// images over black), and the largest alpha difference when both files carry alpha.
+// images over black), and the largest alpha difference when both files carry alpha. With two
+// EXRs carrying depth (Z, mm: isosurface hits), also the depth difference where both hit and
+// the pixels where only one does.
 //   octoray-compare A B [--json]
 
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <string>
@@ -43,6 +46,23 @@ int main(int argc, char** argv) {
     } catch (const octoray::Error& e) {
       throw octoray::Error(pathB, e.reason() + " (against " + pathA + ")");
     }
+    // Depth (EXR Z): finite where a ray hit (isosurfaces) or met material (DVR).
+    double depthMean = 0, depthMax = 0;
+    int64_t depthBoth = 0, depthOne = 0;
+    if (a.depth.size() == b.depth.size()) {
+      for (std::size_t i = 0; i < a.depth.size(); ++i) {
+        const bool ha = std::isfinite(a.depth[i]), hb = std::isfinite(b.depth[i]);
+        if (ha && hb) {
+          const double d = std::abs(static_cast<double>(a.depth[i]) - b.depth[i]);
+          depthMean += d;
+          depthMax = std::max(depthMax, d);
+          ++depthBoth;
+        } else if (ha != hb) {
+          ++depthOne;
+        }
+      }
+      if (depthBoth > 0) depthMean /= static_cast<double>(depthBoth);
+    }
     // JSON has no infinity: identical images report "psnrDb": null.
     const nlohmann::json psnr =
         std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json();
@@ -59,7 +79,11 @@ int main(int argc, char** argv) {
                                   {"nonFiniteB", m.nonFiniteB},
                                   {"maxAlphaError", m.alphaCompared
                                                         ? nlohmann::json(m.maxAlphaError)
-                                                        : nlohmann::json()}}
+                                                        : nlohmann::json()},
+                                  {"depth", {{"pixelsBoth", depthBoth},
+                                             {"pixelsOne", depthOne},
+                                             {"meanAbsMm", depthMean},
+                                             {"maxAbsMm", depthMax}}}}
                        .dump(2)
                 << '\n';
     } else {

@@ -1,0 +1,181 @@
+#!/usr/bin/python3
+"""Plots and tables from bench/accuracy.py's output (docs/accuracy.md).
+
+Usage: bench/plot_accuracy.py OUT_DIR [--images DIR]
+Reads OUT_DIR/rows.csv, truths.csv, scaling.csv and machine.json; writes one PNG per scene and
+mode (error against the truth over time per frame, every setting of ours and VTK's, with the
+Pareto fronts) into --images (default OUT_DIR), and OUT_DIR/report.md with the tables:
+every knob's settings (median over views), VTK at equal error (for each VTK point, our fastest
+setting with an error no larger, and the time ratio), and scaling.
+"""
+
+import argparse
+import csv
+import json
+import statistics
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+
+# Effects change the picture (the truth has none of them): they are timed and shown, but are
+# not approximations of the truth, so they take no part in the fronts or the equal-error table.
+EFFECTS = {"boundary", "silhouette", "shading"}
+
+
+def number(v):
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return None
+
+
+def load(path):
+    if not path.exists():
+        return []
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def pareto(points):
+    """Points (ms, psnr) not beaten by one both faster and more accurate, by time."""
+    front, best = [], -1e9
+    for ms, db in sorted(points):
+        if db > best:
+            front.append((ms, db))
+            best = db
+    return front
+
+
+def median_rows(rows):
+    """Median over views of each (scene, mode, renderer, knob, setting)."""
+    groups = defaultdict(list)
+    for r in rows:
+        groups[(r["scene"], r["mode"], r["renderer"], r["knob"], r["setting"])].append(r)
+    out = []
+    for key, rs in groups.items():
+        m = {"scene": key[0], "mode": key[1], "renderer": key[2], "knob": key[3], "setting": key[4],
+             "views": len(rs), "note": "; ".join(sorted({r["note"] for r in rs if r.get("note")}))}
+        for c in ["medianMs", "drawMs", "raysCast", "samplesPerPixel", "contributingPerPixel", "residentMiB",
+                  "psnrDb", "ssim", "maxAbsError", "depthMeanVoxels", "depthMaxVoxels"]:
+            values = [number(r.get(c)) for r in rs if number(r.get(c)) is not None]
+            m[c] = statistics.median(values) if values else None
+        out.append(m)
+    return out
+
+
+def fmt(v, digits=1):
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("out")
+    p.add_argument("--images", default="")
+    args = p.parse_args()
+    out = Path(args.out)
+    images = Path(args.images) if args.images else out
+    images.mkdir(parents=True, exist_ok=True)
+    rows = load(out / "rows.csv")
+    truths = load(out / "truths.csv")
+    scaling = load(out / "scaling.csv")
+    machine = json.loads((out / "machine.json").read_text()) if (out / "machine.json").exists() else {}
+    med = median_rows(rows)
+    report = [f"Measured {machine.get('date', '?')} on `{machine.get('uname', '?')}` ({machine.get('cpus', '?')} CPUs); "
+              f"command `{machine.get('command', '?')}`. Times are medians of steady frames (ms per frame, "
+              f"the whole frame: working set, upload, raycast, read-back); errors against the converged truth; "
+              f"each number the median over the views rendered.", ""]
+
+    # Truths.
+    report += ["### The truths", "", "| scene | mode | view | converged | step (mm) | last change (max) | last change PSNR (dB) | seconds |",
+               "|---|---|---|---|---|---|---|---|"]
+    for t in truths:
+        report.append(f"| {t['scene']} | {t['mode']} | {t['view']} | {t['converged']} | {fmt(number(t['stepMm']), 4)} | "
+                      f"{fmt(number(t['lastChangeMax']), 4)} | {fmt(number(t['lastChangePsnrDb']))} | {t['seconds']} |")
+    report.append("")
+
+    # Knob tables and plots per scene and mode.
+    scenes_modes = sorted({(m["scene"], m["mode"]) for m in med})
+    for scene, mode in scenes_modes:
+        ours = [m for m in med if m["scene"] == scene and m["mode"] == mode and m["renderer"] == "octoray"]
+        vtk = [m for m in med if m["scene"] == scene and m["mode"] == mode and m["renderer"].startswith("vtk")]
+        report += [f"### {scene}, {mode}", "",
+                   "| renderer | knob | setting | ms/frame | draw ms | rays | samples/image px | contributing/covered px | resident MiB | PSNR dB | SSIM | max err | depth err (vox, mean/max) |",
+                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for m in ours + vtk:
+            depth = f"{fmt(m['depthMeanVoxels'], 3)} / {fmt(m['depthMaxVoxels'], 2)}" if mode == "iso" else "–"
+            note = f" ({m['note']})" if m["note"] else ""
+            report.append(f"| {m['renderer']} | {m['knob']} | {m['setting']}{note} | {fmt(m['medianMs'])} | {fmt(m['drawMs'])} | "
+                          f"{fmt(m['raysCast'], 0)} | {fmt(m['samplesPerPixel'])} | {fmt(m['contributingPerPixel'])} | "
+                          f"{fmt(m['residentMiB'])} | {fmt(m['psnrDb'])} | {fmt(m['ssim'], 4)} | {fmt(m['maxAbsError'], 3)} | {depth} |")
+        report.append("")
+
+        # Equal error: for each VTK point, our fastest setting at an error no larger.
+        if vtk:
+            report += [f"Equal error, {scene}, {mode}: for each VTK setting, our fastest setting whose PSNR "
+                       f"against the truth is at least VTK's.", "",
+                       "| VTK | setting | VTK ms | VTK PSNR | ours | ours ms | ours PSNR | time ratio ours/VTK |",
+                       "|---|---|---|---|---|---|---|---|"]
+            for v in vtk:
+                if v["medianMs"] is None or v["psnrDb"] is None:
+                    continue
+                candidates = [o for o in ours if o["psnrDb"] is not None and o["medianMs"] is not None
+                              and o["psnrDb"] >= v["psnrDb"] and o["knob"] not in EFFECTS]
+                if not candidates:
+                    report.append(f"| {v['renderer']} | {v['setting']} | {fmt(v['medianMs'])} | {fmt(v['psnrDb'])} | none as accurate | | | |")
+                    continue
+                best = min(candidates, key=lambda o: o["medianMs"])
+                report.append(f"| {v['renderer']} | {v['setting']} | {fmt(v['medianMs'])} | {fmt(v['psnrDb'])} | "
+                              f"{best['knob']} {best['setting']} | {fmt(best['medianMs'])} | {fmt(best['psnrDb'])} | "
+                              f"{best['medianMs'] / v['medianMs']:.2f} |")
+            report.append("")
+
+        # Plot: PSNR against ms per frame.
+        fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=110)
+        knobs = sorted({o["knob"] for o in ours})
+        cmap = plt.get_cmap("tab20")
+        for i, knob in enumerate(k for k in knobs if k not in EFFECTS):
+            pts = [(o["medianMs"], o["psnrDb"]) for o in ours if o["knob"] == knob and o["medianMs"] and o["psnrDb"]]
+            if pts:
+                ax.scatter(*zip(*pts), s=22, color=cmap(i % 20), label=f"octoray {knob}", zorder=3)
+        front = pareto([(o["medianMs"], o["psnrDb"]) for o in ours
+                        if o["medianMs"] and o["psnrDb"] and o["knob"] not in EFFECTS])
+        if front:
+            ax.plot(*zip(*front), color="black", lw=1.2, label="octoray Pareto front", zorder=2)
+        for name, marker, colour in [("vtk-gpu", "s", "tab:red"), ("vtk-cpu", "^", "tab:purple")]:
+            pts = [(v["medianMs"], v["psnrDb"]) for v in vtk if v["renderer"] == name and v["medianMs"] and v["psnrDb"]]
+            if pts:
+                ax.scatter(*zip(*pts), s=40, marker=marker, color=colour, label=name, zorder=4)
+                f = pareto(pts)
+                ax.plot(*zip(*f), color=colour, lw=1, ls="--", zorder=2)
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per frame (median, log scale)")
+        ax.set_ylabel("PSNR against the converged truth (dB)")
+        ax.set_title(f"{scene}, {mode}: error against time")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6, ncol=2, loc="lower right")
+        fig.tight_layout()
+        fig.savefig(images / f"accuracy-{scene}-{mode}.png")
+        plt.close(fig)
+
+    if scaling:
+        report += ["### Scaling with dataset size (CT-Bone, 30°/15°)", "",
+                   "| size | renderer | ms/frame | first frame ms | peak RSS MiB | note |", "|---|---|---|---|---|---|"]
+        for s in scaling:
+            report.append(f"| {s['size']} | {s['renderer']} | {fmt(number(s.get('medianMs')))} | {fmt(number(s.get('firstMs')))} | "
+                          f"{s.get('peakRssMiB') or '–'} | {s.get('note') or ''} |")
+        report.append("")
+    (out / "report.md").write_text("\n".join(report) + "\n")
+    print(f"{out / 'report.md'} and {len(scenes_modes)} plots in {images}")
+
+
+if __name__ == "__main__":
+    main()
