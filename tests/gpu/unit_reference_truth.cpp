@@ -192,7 +192,9 @@ TEST(ReferenceTruth, ConvergedTruthLandsOnTheClosedForm) {
     std::printf("pre-integration %d: converged at %.4g mm after %zu pictures, largest error %.2g (estimate %.2g)\n",
                 pre, truth.stepsMm.back(), truth.stepsMm.size(), e.max, truth.estimatedMaxError);
     // Pre-integration gets there in fewer halvings.
-    if (pre) EXPECT_LE(truth.stepsMm.size(), 3u);
+    if (pre) {
+      EXPECT_LE(truth.stepsMm.size(), 3u);
+    }
   }
 }
 
