@@ -92,6 +92,28 @@ Classification shadePhong(const transfer::Material& material, const Classificati
   return {c.r * lit + spec, c.g * lit + spec, c.b * lit + spec, c.alpha};
 }
 
+// The chord cut into n equal steps of delta <= the frame's step (every mode's rule).
+struct ChordSteps {
+  int64_t n = 0;
+  double delta = 0;
+};
+ChordSteps cutChord(const Frame& f, const Chord& chord) {
+  const double chordMm = chord.tFar - chord.tNear;
+  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
+  return {static_cast<int64_t>(steps), chordMm / steps};
+}
+
+// What gradient opacity and boundary enhancement multiply a sample's opacity by.
+double opacityFactor(const Frame& f, double gradientMagnitude) {
+  double factor = 1.0;
+  if (f.useGradientOpacity) factor *= gradientOpacity(*f.tf, gradientMagnitude);
+  if (f.options.boundary.enabled) {
+    const BoundaryEnhancement& be = f.options.boundary;
+    factor *= be.kC + be.kS * std::pow(gradientMagnitude, be.kE);
+  }
+  return factor;
+}
+
 // The lighting of shadePhong as (ka + kd |n.l|, ks spec): colour * first + second.
 std::pair<double, double> phongFactors(const transfer::Material& material, const Vec3& gradient,
                                        const Vec3& rayDirection) {
@@ -141,10 +163,7 @@ RayResult marchDvrPreintegrated(const Frame& f, const Vec3& o, const Vec3& d,
                                 const Vec3& directionPatient, const Chord& chord) {
   RayResult out;
   const transfer::TransferFunction& tf = *f.tf;
-  const double chordMm = chord.tFar - chord.tNear;
-  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
-  const int64_t n = static_cast<int64_t>(steps);
-  const double delta = chordMm / steps;
+  const auto [n, delta] = cutChord(f, chord);
   const double ratio = delta / tf.unitDistanceMm;
   const double stopAt = f.options.earlyTermination;
   double transmittance = 1.0;
@@ -161,13 +180,7 @@ RayResult marchDvrPreintegrated(const Frame& f, const Vec3& o, const Vec3& d,
     if (f.needGradient) {
       const Vec3 g = gradientPatient(f, indexPoint(o, d, t));
       out.samples += 6;
-      const double magnitude = length(g);
-      double factor = 1.0;
-      if (f.useGradientOpacity) factor *= gradientOpacity(tf, magnitude);
-      if (f.options.boundary.enabled) {
-        const BoundaryEnhancement& be = f.options.boundary;
-        factor *= be.kC + be.kS * std::pow(magnitude, be.kE);
-      }
+      const double factor = opacityFactor(f, length(g));
       if (factor != 1.0) {
         // The segment's opacity per unit distance scaled, then carried back to its length.
         const double unitAlpha = c.alpha >= 1.0 ? 1.0 : correctOpacity(c.alpha, 1.0 / ratio);
@@ -197,10 +210,7 @@ RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
                    const Chord& chord, double jitter) {
   RayResult out;
   const transfer::TransferFunction& tf = *f.tf;
-  const double chordMm = chord.tFar - chord.tNear;
-  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
-  const int64_t n = static_cast<int64_t>(steps);
-  const double delta = chordMm / steps;
+  const auto [n, delta] = cutChord(f, chord);
   const double ratio = delta / tf.unitDistanceMm;
   const double stopAt = f.options.earlyTermination;
   double transmittance = 1.0;
@@ -214,13 +224,7 @@ RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
     if (f.needGradient) {
       const Vec3 g = gradientPatient(f, p);
       out.samples += 6;
-      const double magnitude = length(g);
-      if (f.useGradientOpacity) c.alpha *= gradientOpacity(tf, magnitude);
-      if (f.options.boundary.enabled) {
-        const BoundaryEnhancement& be = f.options.boundary;
-        c.alpha *= be.kC + be.kS * std::pow(magnitude, be.kE);
-      }
-      c.alpha = std::clamp(c.alpha, 0.0, 1.0);
+      c.alpha = std::clamp(c.alpha * opacityFactor(f, length(g)), 0.0, 1.0);
       if (f.shade) c = shadePhong(tf.material, c, g, directionPatient);
     }
     const double alpha = correctOpacity(c.alpha, ratio);
@@ -242,10 +246,7 @@ RayResult marchIso(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
   RayResult out;
   const double iso = f.options.isoValue;
   const double voxelsPerMm = length(d);
-  const double chordMm = chord.tFar - chord.tNear;
-  const double steps = std::max(1.0, std::ceil(chordMm / f.stepMm));
-  const int64_t n = static_cast<int64_t>(steps);
-  const double delta = chordMm / steps;
+  const auto [n, delta] = cutChord(f, chord);
   auto excess = [&](double t) {
     ++out.samples;
     return sampleAt(*f.volume, indexPoint(o, d, t)) - iso;
