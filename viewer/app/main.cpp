@@ -13,11 +13,17 @@
 #include <memory>
 
 #include "app.h"
+#include "cli_support.h"
 #include "octoray/core/error.h"
 
 int main(int argc, char** argv) {
   using namespace octoray;
   CLI::App cli{"octoray-view: view CT volumes larger than GPU memory (four-up MPR + 3D)"};
+  cli.footer(
+      "Examples:\n"
+      "  octoray-view                                  # empty window: File > Open, or drop files\n"
+      "  octoray-view /media/cd/DICOMDIR               # imports in the background, MPR at once\n"
+      "  octoray-view head.octoray --layout 1+3 --preset bone --wl brain\n");
   viewer::AppOptions o;
   std::string size = "1280x800", cacheDir;
   cli.add_option("data", o.data, "an octree store, a DICOM folder/DICOMDIR/file, NRRD, MHD, NIfTI or TIFF");
@@ -39,6 +45,7 @@ int main(int argc, char** argv) {
   cli.add_option("--visibility", o.visibility, "3D working-set feedback: rays (default), occlusion, both, none");
   cli.add_flag("--hidden", o.hidden, "an invisible window (still needs a display)");
   CLI11_PARSE(cli, argc, argv);
+  const octoray::cli::WorkerThreadsJoinedAtExit joinedAtExit;
   try {
     if (std::sscanf(size.c_str(), "%dx%d", &o.width, &o.height) != 2 || o.width < 320 || o.height < 240) {
       throw Error("", fmt::format("--size \"{}\": expected WxH, at least 320x240", size));

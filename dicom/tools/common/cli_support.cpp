@@ -16,7 +16,9 @@
 
 namespace octoray::cli {
 
-int runTool(const char* toolName, const std::function<int()>& body) {
+namespace {
+
+int runBody(const char* toolName, const std::function<int()>& body) {
   try {
     return body();
   } catch (const Error& e) {
@@ -27,6 +29,22 @@ int runTool(const char* toolName, const std::function<int()>& body) {
     fmt::print(stderr, "{}: {}\n", toolName, e.what());
   }
   return 1;
+}
+
+}  // namespace
+
+int runTool(const char* toolName, const std::function<int()>& body) {
+  WorkerThreadsJoinedAtExit joined;
+  return runBody(toolName, body);
+}
+
+WorkerThreadsJoinedAtExit::WorkerThreadsJoinedAtExit()
+    : scheduler_(tbb::attach{}) {}
+
+WorkerThreadsJoinedAtExit::~WorkerThreadsJoinedAtExit() {
+  // Fails (and returns false) only when another handle or a running parallel algorithm still
+  // holds the scheduler; exit then tears the threads down as before.
+  (void)tbb::finalize(scheduler_, std::nothrow);
 }
 
 namespace {

@@ -10,11 +10,28 @@
 #include <string>
 #include <vector>
 
+#include <tbb/global_control.h>
+
 namespace octoray::cli {
 
 // Runs `body`, turning octoray::Error and any other exception into "<tool>: <message>" on
 // stderr and exit status 1. Returns body's exit status otherwise.
 int runTool(const char* toolName, const std::function<int()>& body);
+
+// Waits, when it goes out of scope, for TBB's worker threads to end. Left to themselves they are
+// torn down by TBB's static destructors while LeakSanitizer's exit-time check stops every
+// thread, and its tracer then crashes now and then ("Tracer caught signal 11") after the tool
+// did its work. runTool holds one; a main() that does not use runTool holds its own.
+class WorkerThreadsJoinedAtExit {
+ public:
+  WorkerThreadsJoinedAtExit();
+  ~WorkerThreadsJoinedAtExit();
+  WorkerThreadsJoinedAtExit(const WorkerThreadsJoinedAtExit&) = delete;
+  WorkerThreadsJoinedAtExit& operator=(const WorkerThreadsJoinedAtExit&) = delete;
+
+ private:
+  tbb::task_scheduler_handle scheduler_;
+};
 
 // "512x512x140": three positive integers separated by 'x'. Throws octoray::Error naming
 // `option` otherwise.
