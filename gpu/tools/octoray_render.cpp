@@ -4,7 +4,8 @@
 // reference renderer (the double-precision oracle). Inputs that are not stores are built into
 // a temporary store first for the GPU path (border 2, removed afterwards).
 //   octoray-render PATH -o OUT.png [--exr OUT.exr] --mode dvr|iso|mip
-//     --preset NAME | --tf FILE [--tf-name NAME]  [--iso HU]  --size WxH
+//     [--preset NAME | --tf FILE [--tf-name NAME]]  [--iso HU]  --size WxH
+//     (without --preset/--tf: transfer/defaults.h's default for the mode; CT iso: 300 HU)
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
@@ -28,6 +29,7 @@
 #include <fstream>
 #include <iostream>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <random>
 #include <string>
@@ -43,6 +45,7 @@
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"
 #include "octoray/gpu/reference/reference_renderer.h"
+#include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_format.h"
@@ -72,6 +75,8 @@ struct Arguments {
   std::string visibility = "rays", cameraPath, statsOut;
   int visibilityThreshold = 4;
   std::string boundary, silhouette, clip;
+  // Set by resolveDefaults() when neither --preset nor --tf was given.
+  std::optional<transfer::TransferFunction> defaultTf;
 };
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
@@ -107,7 +112,62 @@ gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
   return gpu::reference::ReferenceVolume::fromSource(*source);
 }
 
+// Whether a volume holds Hounsfield units, and its value range: what choosing a default
+// transfer function needs. A store says so in its provenance and root node; other inputs in
+// their VolumeInfo.
+struct ValueKind {
+  bool hounsfield = false;
+  double lo = std::numeric_limits<double>::quiet_NaN(), hi = lo;
+};
+
+ValueKind valueKind(const std::string& path) {
+  ValueKind kind;
+  if (isStore(path)) {
+    const volume::StoreReader store(path);
+    const nlohmann::json provenance = nlohmann::json::parse(store.provenanceJson(), nullptr, false);
+    if (provenance.is_object() && provenance.contains("source") &&
+        provenance["source"].is_object()) {
+      const nlohmann::json& source = provenance["source"];
+      kind.hounsfield = source.value("unit", std::string()) == "HU" ||
+                        source.value("modality", std::string()) == "CT";
+    }
+    kind.lo = store.node(0).minValue;
+    kind.hi = store.node(0).maxValue;
+    return kind;
+  }
+  const VolumeInfo info = openVolume(path)->info();
+  kind.hounsfield = info.unit == "HU" || info.modality == "CT";
+  kind.lo = info.valueLowerBound;
+  kind.hi = info.valueUpperBound;
+  return kind;
+}
+
+// Without --preset and --tf: the default of transfer/defaults.h for the mode and the volume,
+// and for a CT isosurface without --iso, 300 HU. Says on stderr what it chose.
+void resolveDefaults(Arguments& a) {
+  const bool needTf = a.preset.empty() && a.tfPath.empty();
+  const bool needIso = a.mode == "iso" && !a.iso;
+  if (!needTf && !needIso) return;
+  const ValueKind kind = valueKind(a.path);
+  if (needIso) {
+    if (!kind.hounsfield) throw Error(a.path, "--mode iso needs --iso VALUE (the volume is not CT)");
+    a.iso = transfer::kDefaultCtIsoValueHu;
+    fmt::print(stderr, "octoray-render: no --iso: using {:g} HU (bone)\n", *a.iso);
+  }
+  if (needTf) {
+    const transfer::DefaultMode mode = a.mode == "iso"   ? transfer::DefaultMode::Iso
+                                       : a.mode == "mip" ? transfer::DefaultMode::Mip
+                                                         : transfer::DefaultMode::Dvr;
+    transfer::DefaultTransferFunction chosen =
+        transfer::defaultTransferFunction(mode, kind.hounsfield, kind.lo, kind.hi);
+    fmt::print(stderr, "octoray-render: no --preset or --tf: using {} ({}{})\n",
+               chosen.description, kind.hounsfield ? "CT, " : "", a.mode);
+    a.defaultTf = std::move(chosen.tf);
+  }
+}
+
 transfer::TransferFunction loadTransferFunction(const Arguments& a) {
+  if (a.defaultTf) return *a.defaultTf;
   if (!a.tfPath.empty()) {
     return transfer::selectTransferFunction(transfer::loadTransferFunctions(a.tfPath), a.tfName,
                                             a.tfPath);
@@ -635,7 +695,8 @@ int runGpu(const Arguments& a) {
   return 0;
 }
 
-int run(const Arguments& a) {
+int run(Arguments a) {
+  resolveDefaults(a);
   std::optional<tbb::global_control> threadLimit;
   if (a.threads > 0) {
     threadLimit.emplace(tbb::global_control::max_allowed_parallelism,
@@ -649,6 +710,12 @@ int run(const Arguments& a) {
 int main(int argc, char** argv) {
   CLI::App app{
       "Renders a CT volume with the GPU raycaster (default) or the CPU reference renderer."};
+  app.footer(
+      "Examples:\n"
+      "  octoray-render head.octoray -o head.png             # DVR, bone preset, 512x512\n"
+      "  octoray-render head.octoray --mode iso -o bone.png  # bone surface at 300 HU\n"
+      "  octoray-render head.octoray --mode mip --azimuth 90 --size 1024x1024 -o mip.png\n"
+      "  octoray-render head.octoray --preset lung --reference --converge -o truth.png\n");
   Arguments a;
   app.add_option("path", a.path, "octree store, DICOM folder or volume file")->required();
   app.add_option("-o,--output", a.output, "PNG to write (colour over black, 8-bit)")->required();
@@ -656,13 +723,14 @@ int main(int argc, char** argv) {
   app.add_option("--mode", a.mode, "dvr, iso or mip")
       ->check(CLI::IsMember({"dvr", "iso", "mip"}))
       ->capture_default_str();
-  auto* preset = app.add_option("--preset", a.preset, "shipped preset by name (bone, lung, ...)");
+  auto* preset = app.add_option("--preset", a.preset, "shipped preset by name (bone, lung, ...); default: bone for CT DVR, a bone-coloured "
+                                "surface for iso, a grey ramp for MIP");
   auto* tfFile =
       app.add_option("--tf", a.tfPath, "transfer function file (octoray JSON, Slicer, ParaView)");
   preset->excludes(tfFile);
   app.add_option("--tf-name", a.tfName, "which function of a --tf file holding several")
       ->needs(tfFile);
-  app.add_option("--iso", a.iso, "isovalue (HU) for --mode iso");
+  app.add_option("--iso", a.iso, "isovalue (HU) for --mode iso (CT default: 300 HU)");
   auto* size = app.add_option("--size", a.size, "image WxH")->capture_default_str();
   app.add_option("--azimuth", a.azimuth,
                  "degrees; 0 = from anterior, 90 = from the patient's left");
@@ -768,9 +836,6 @@ int main(int argc, char** argv) {
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
   try {
     app.parse(argc, argv);
-    if (a.preset.empty() && a.tfPath.empty()) {
-      throw CLI::ValidationError("--preset or --tf", "one of them is required");
-    }
     if (!a.camera.empty() && size->count() == 0) a.size.clear();
     if (!a.cameraPath.empty() && (app.count("--frames") > 0 || app.count("--orbit") > 0)) {
       throw CLI::ValidationError("--path", "replaces --frames and --orbit");
