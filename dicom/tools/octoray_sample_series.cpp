@@ -19,6 +19,11 @@ namespace {
 int main(int argc, char** argv) {
   CLI::App app{"Writes a small synthetic CT exam (DICOM) whose values are a known function of "
                "patient position: the built-in sample for trying octoray."};
+  app.footer(
+      "Examples:\n"
+      "  octoray-sample-series sample/             # 64x64x40 CT exam, 0.5 x 0.5 x 1.25 mm\n"
+      "  octoray-sample-series tilted/ --tilt 15 --variable-gaps --with-localizer\n"
+      "  octoray-import sample/ -o sample.octoray   # then view or render it\n");
   std::string outDir;
   std::string size = "64x64x40";
   std::string spacing = "0.5,0.5,1.25";

@@ -23,6 +23,10 @@ int main(int argc, char** argv) {
   CLI::App app{
       "Compares two images (PNG or OpenEXR) as seen over black: RMSE, PSNR, SSIM, max error, "
       "NaN/inf pixels; alpha separately when both have it."};
+  app.footer(
+      "Examples:\n"
+      "  octoray-compare gpu.png reference.png            # RMSE, PSNR, SSIM, max error\n"
+      "  octoray-compare gpu.exr reference.exr --json     # with depth error, as JSON\n");
   std::string pathA, pathB;
   bool json = false;
   app.add_option("a", pathA, "first image")->required();

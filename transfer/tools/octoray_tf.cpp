@@ -15,6 +15,11 @@
 int main(int argc, char** argv) {
   return octoray::cli::runTool("octoray-tf", [&] {
     CLI::App app{"Inspect and convert transfer-function presets"};
+    app.footer(
+        "Examples:\n"
+        "  octoray-tf list presets.xml                    # the functions in Slicer's presets\n"
+        "  octoray-tf convert presets.xml --tf-name CT-AAA -o ct-aaa.json\n"
+        "  octoray-render head.octoray --tf ct-aaa.json -o head.png\n");
     app.require_subcommand(1);
 
     std::string listFile;

@@ -26,6 +26,11 @@ int main(int argc, char** argv) {
   CLI::App app{
       "Writes the octoray synthetic head CT phantom (HU, int16) at any size as NRRD: a "
       "detached header and a .raw data file beside it."};
+  app.footer(
+      "Examples:\n"
+      "  octoray-phantom -o head.nhdr                          # 256^3, 1 mm, band-limited\n"
+      "  octoray-phantom -o big.nhdr --size 2048x2048x1024 --spacing 0.25,0.25,0.5\n"
+      "  octoray-import head.nhdr -o head.octoray\n");
   std::string output;
   std::string size = "256x256x256";
   std::string spacing = "0.5,0.5,0.5";

@@ -107,6 +107,10 @@ int main(int argc, char** argv) {
       "borders, filtered levels, constant nodes) or a DICOM folder / DICOMDIR "
       "(skipped files, duplicates, missing slices, spacing, mixed series). Exit status "
       "0: all checks pass; 1: a check fails; 2: usage error."};
+  app.footer(
+      "Examples:\n"
+      "  octoray-validate head.octoray          # every check of the store; exit 1 on a failure\n"
+      "  octoray-validate /media/usb/DICOM --json > report.json\n");
   std::string path;
   bool json = false;
   uint64_t cacheMiB = 256;
