@@ -114,14 +114,18 @@ gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
 
 // Whether a volume holds Hounsfield units, and its value range: what choosing a default
 // transfer function needs. A store says so in its provenance and root node; other inputs in
-// their VolumeInfo.
+// their VolumeInfo, their range read in one pass. Volumes that do not say (NRRD, NIfTI, raw)
+// but whose integer values reach down to air (-900 HU or below, not below -3100) are taken as
+// CT, as clinicians' CT exports in those formats are.
 struct ValueKind {
   bool hounsfield = false;
+  bool guessed = false;  // hounsfield from the values alone
   double lo = std::numeric_limits<double>::quiet_NaN(), hi = lo;
 };
 
 ValueKind valueKind(const std::string& path) {
   ValueKind kind;
+  bool integer = true;
   if (isStore(path)) {
     const volume::StoreReader store(path);
     const nlohmann::json provenance = nlohmann::json::parse(store.provenanceJson(), nullptr, false);
@@ -133,12 +137,33 @@ ValueKind valueKind(const std::string& path) {
     }
     kind.lo = store.node(0).minValue;
     kind.hi = store.node(0).maxValue;
-    return kind;
+    integer = store.sampleFormat() == volume::SampleFormat::UInt16 &&
+              store.header().valueScale == 1.0 &&
+              store.header().valueOffset == std::round(store.header().valueOffset);
+  } else {
+    const auto source = openVolume(path);
+    const VolumeInfo& info = source->info();
+    kind.hounsfield = info.unit == "HU" || info.modality == "CT";
+    integer = info.integerValues;
+    kind.lo = std::numeric_limits<double>::infinity();
+    kind.hi = -kind.lo;
+    const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
+    std::vector<float> buffer;
+    for (int64_t k = 0; k < info.dims[2]; k += slab) {
+      const int64_t n = std::min(slab, info.dims[2] - k);
+      buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
+      source->readSlab(k, n, buffer);
+      for (const float v : buffer) {
+        if (!std::isfinite(v)) continue;
+        kind.lo = std::min(kind.lo, static_cast<double>(v));
+        kind.hi = std::max(kind.hi, static_cast<double>(v));
+      }
+    }
   }
-  const VolumeInfo info = openVolume(path)->info();
-  kind.hounsfield = info.unit == "HU" || info.modality == "CT";
-  kind.lo = info.valueLowerBound;
-  kind.hi = info.valueUpperBound;
+  if (!kind.hounsfield && integer && kind.lo <= -900 && kind.lo >= -3100) {
+    kind.hounsfield = true;
+    kind.guessed = true;
+  }
   return kind;
 }
 
@@ -161,7 +186,11 @@ void resolveDefaults(Arguments& a) {
     transfer::DefaultTransferFunction chosen =
         transfer::defaultTransferFunction(mode, kind.hounsfield, kind.lo, kind.hi);
     fmt::print(stderr, "octoray-render: no --preset or --tf: using {} ({}{})\n",
-               chosen.description, kind.hounsfield ? "CT, " : "", a.mode);
+               chosen.description,
+               kind.guessed ? fmt::format("values from {:g} look like CT, ", kind.lo)
+               : kind.hounsfield ? std::string("CT, ")
+                                 : std::string(),
+               a.mode);
     a.defaultTf = std::move(chosen.tf);
   }
 }

@@ -12,6 +12,7 @@
 #include "octoray/gpu/image_metrics.h"
 #include "octoray/volume/phantom.h"
 #include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
 #include "run_process.h"
 #include "test_paths.h"
 
@@ -91,16 +92,85 @@ TEST_F(RenderTools, ModesAndErrors) {
       {render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone", "--reference"});
   EXPECT_EQ(bad.exitCode, 1);
   EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
-  EXPECT_EQ(
-      runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "iso", "--reference"}).exitCode,
-      1);
   // GPU-only options with --reference, and --gpu with --reference, are usage errors.
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--lod-pixels", "2"})
                 .exitCode,
             2);
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--gpu"}).exitCode, 2);
-  EXPECT_EQ(runProcess({render, nrrd, "-o", out}).exitCode, 2);  // no transfer function
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--mode", "x"}).exitCode, 2);
+}
+
+// Without --preset and --tf: CT gets the bone preset (DVR), a bone-coloured surface at 300 HU
+// (iso) and a grey ramp (MIP), each said on stderr; other values a grey ramp over their range,
+// and an isosurface of them needs --iso.
+TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
+  const std::string render = toolPath("octoray-render").string();
+  const std::vector<std::string> common{"--size", "48x40", "--azimuth", "30", "--reference"};
+  auto run = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), render);
+    args.insert(args.end(), common.begin(), common.end());
+    return runProcess(args);
+  };
+  auto image = [&](const std::string& name) { return gpu::readImage(dir / name).rgba; };
+
+  // The store says HU in its provenance; the NRRD does not, but its values reach air.
+  for (const auto& [input, says] : {std::pair{store, std::string("(CT, dvr)")},
+                                    std::pair{nrrd, std::string("look like CT")}}) {
+    SCOPED_TRACE(input);
+    const ProcessResult byDefault = run({input, "-o", (dir / "d.png").string(), "--exr", (dir / "d.exr").string()});
+    ASSERT_EQ(byDefault.exitCode, 0) << byDefault.err;
+    EXPECT_NE(byDefault.err.find("no --preset or --tf: using the bone preset"), std::string::npos) << byDefault.err;
+    EXPECT_NE(byDefault.err.find(says), std::string::npos) << byDefault.err;
+    ASSERT_EQ(run({input, "-o", (dir / "b.png").string(), "--exr", (dir / "b.exr").string(), "--preset", "bone"}).exitCode, 0);
+    EXPECT_EQ(image("d.exr"), image("b.exr"));
+  }
+
+  const ProcessResult iso = run({store, "--mode", "iso", "-o", (dir / "i.png").string(), "--exr", (dir / "i.exr").string()});
+  ASSERT_EQ(iso.exitCode, 0) << iso.err;
+  EXPECT_NE(iso.err.find("no --iso: using 300 HU"), std::string::npos) << iso.err;
+  EXPECT_NE(iso.err.find("bone-coloured surface"), std::string::npos) << iso.err;
+  ASSERT_EQ(run({store, "--mode", "iso", "--iso", "300", "-o", (dir / "j.png").string(), "--exr", (dir / "j.exr").string()}).exitCode, 0);
+  const auto surface = image("i.exr");
+  EXPECT_EQ(surface, image("j.exr"));
+  // Opaque where it hits, and bone-coloured: red > green > blue.
+  double r = 0, g = 0, b = 0, covered = 0;
+  for (std::size_t i = 0; i < surface.size(); i += 4) {
+    if (surface[i + 3] < 0.99f) continue;
+    r += surface[i], g += surface[i + 1], b += surface[i + 2], covered += 1;
+  }
+  ASSERT_GT(covered, 48 * 40 * 0.1);
+  EXPECT_GT(r, g);
+  EXPECT_GT(g, b);
+
+  const ProcessResult mip = run({store, "--mode", "mip", "-o", (dir / "m.png").string(), "--exr", (dir / "m.exr").string()});
+  ASSERT_EQ(mip.exitCode, 0) << mip.err;
+  EXPECT_NE(mip.err.find("grey ramp from -200 HU"), std::string::npos) << mip.err;
+  const auto grey = image("m.exr");
+  double brightest = 0;
+  for (std::size_t i = 0; i < grey.size(); i += 4) {
+    EXPECT_EQ(grey[i], grey[i + 1]);
+    EXPECT_EQ(grey[i], grey[i + 2]);
+    brightest = std::max<double>(brightest, grey[i]);
+  }
+  // The brightest ray reaches about the volume's maximum, mapped by the ramp.
+  const double maximum = volume::StoreReader(store).node(0).maxValue;
+  const double expected = std::clamp((maximum + 200.0) / 1200.0, 0.0, 1.0);
+  EXPECT_LE(brightest, expected + 1e-3);
+  EXPECT_GE(brightest, expected - 0.1) << "maximum " << maximum << " HU";
+
+  // Values that are not CT (0..200, uint8): a grey ramp over them; iso needs a value.
+  {
+    std::ofstream raw(dir / "u8.raw", std::ios::binary);
+    for (int i = 0; i < 32 * 32 * 32; ++i) raw.put(static_cast<char>((i * 7) % 201));
+  }
+  std::ofstream(dir / "u8.nhdr") << "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 32 32 32\n"
+                                    "spacings: 1 1 1\nencoding: raw\ndata file: u8.raw\n";
+  const ProcessResult other = run({(dir / "u8.nhdr").string(), "-o", (dir / "u.png").string()});
+  ASSERT_EQ(other.exitCode, 0) << other.err;
+  EXPECT_NE(other.err.find("grey ramp over the values 0..200"), std::string::npos) << other.err;
+  const ProcessResult otherIso = run({(dir / "u8.nhdr").string(), "--mode", "iso", "-o", (dir / "u.png").string()});
+  EXPECT_EQ(otherIso.exitCode, 1);
+  EXPECT_NE(otherIso.err.find("needs --iso"), std::string::npos) << otherIso.err;
 }
 
 }  // namespace
