@@ -383,6 +383,9 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
     if (ec) throw Error(path.string(), "folder cannot be read: " + ec.message());
     for (; it != fs::recursive_directory_iterator(); it.increment(ec)) {
       if (ec) break;
+      // Hidden files (.DS_Store, a retrieval's temporaries and its completion record) are
+      // not part of an exam.
+      if (it->path().filename().string().starts_with(".")) continue;
       if (!it->is_regular_file(ec)) continue;
       if (isDicomDirName(it->path())) {
         readDirectory(it->path(), it->path().parent_path(), visited, listed, scan);

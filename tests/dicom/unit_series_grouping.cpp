@@ -3,6 +3,8 @@
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
 
+#include <fstream>
+
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/synthetic_series.h"
 #include "test_paths.h"
@@ -61,6 +63,24 @@ TEST(SeriesGrouping, LocalizerFiledUnderTheAxialUidInTheSameOrientationStaysApar
   EXPECT_EQ(volumes, 1);
   EXPECT_EQ(localizers, 1);
   EXPECT_EQ(scan.series[defaultSeriesIndex(scan, dir.string())].frames.size(), 6u);
+}
+
+// Hidden files are not part of an exam: .DS_Store, a retrieval's temporary (a slice cut
+// short) and its completion record are neither read nor reported as skipped.
+TEST(SeriesGrouping, HiddenFilesAreIgnored) {
+  const auto dir = test::freshTempDir("hidden");
+  SyntheticSeriesSpec spec;
+  spec.sliceCount = 5;
+  const SyntheticSeries written = writeSyntheticSeries(dir, spec);
+  std::ofstream(dir / ".DS_Store") << "Bud1 garbage";
+  std::ofstream(dir / ".octoray-retrieved.json") << "{}";
+  std::filesystem::copy_file(written.files.front(), dir / ".extra.dcm.partial-123");
+  std::filesystem::resize_file(dir / ".extra.dcm.partial-123", 400);
+  const DicomScan scan = scanDicom(dir);
+  EXPECT_EQ(scan.filesExamined, written.files.size());
+  EXPECT_TRUE(scan.skipped.empty()) << scan.skipped.front().path;
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), 5u);
 }
 
 }  // namespace
