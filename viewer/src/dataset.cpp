@@ -12,6 +12,7 @@
 #include <limits>
 
 #include "octoray/core/error.h"
+#include "octoray/core/paths.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_format.h"
@@ -19,12 +20,7 @@
 namespace octoray::viewer {
 namespace fs = std::filesystem;
 
-fs::path defaultCacheDir() {
-  if (const char* env = std::getenv("OCTORAY_CACHE"); env && *env) return env;
-  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg) return fs::path(xdg) / "octoray";
-  if (const char* home = std::getenv("HOME"); home && *home) return fs::path(home) / ".cache" / "octoray";
-  return fs::temp_directory_path() / "octoray-cache";
-}
+fs::path defaultCacheDir() { return userCacheDir(); }
 
 bool isStoreFile(const fs::path& path) {
   std::error_code ec;
