@@ -17,6 +17,7 @@ from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from dicom_oracle import DicomVolume, window_grey  # noqa: E402
+import orthanc  # noqa: E402
 
 BIN = os.environ.get("OCTORAY_BIN", "build/bin")
 SHARED = os.environ.get("OCTORAY_SHARED", os.path.join(os.path.dirname(__file__), "../../../shared"))
@@ -575,6 +576,64 @@ class ViewerGui(unittest.TestCase):
         again = load_json(vw.path("again.json"))
         self.assertTrue(again["dataset"]["reusedCache"])
         self.assertEqual(again["dataset"]["store"], state["dataset"]["store"])
+
+    # File > PACS: a real Orthanc holding the head series; search by patient ID and modality,
+    # retrieve and open; the MPR views equal the local files' slices, and the password is in
+    # no file the viewer wrote, nor in its output.
+    @unittest.skipUnless(orthanc.available(), "skipped: Orthanc or its DICOMweb plugin is not installed")
+    def test_pacs_search_retrieve_and_open(self):
+        import pydicom
+        vw = self.viewer("pacs")
+        secret = "pw" + os.urandom(8).hex()
+        server = orthanc.Orthanc(vw.path("orthanc"), "octoray", secret)
+        try:
+            files = sorted(os.path.join(HEAD, n) for n in os.listdir(HEAD) if n != "DIRFILE")
+            server.upload(files)
+            first = pydicom.dcmread(files[0], stop_before_pixels=True)
+            creds = vw.path("pacs.cred")
+            with open(creds, "w") as f:
+                f.write(f"basic octoray:{secret}\n")
+            os.chmod(creds, 0o600)
+            steps = [
+                {"type": "action", "name": "pacs-panel", "value": True},
+                {"type": "action", "name": "pacs-server",
+                 "value": {"url": server.url + "/dicom-web", "credentials": creds}},
+                {"type": "action", "name": "pacs-search", "value": {"patientId": str(first.PatientID), "modality": "CT"}},
+                {"type": "wait-converged"},
+                {"type": "action", "name": "pacs-series", "value": str(first.StudyInstanceUID)},
+                {"type": "wait-converged"},
+                {"type": "screenshot", "path": vw.path("found.png")},
+                {"type": "action", "name": "pacs-panel", "value": False},
+                {"type": "action", "name": "pacs-retrieve",
+                 "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
+                {"type": "wait-converged", "timeout": 900},
+                {"type": "action", "name": "overlays", "value": False},
+                {"type": "wait-converged"},
+                {"type": "screenshot", "path": vw.path("opened.png")},
+            ]
+            p = vw.run(None, steps)
+        finally:
+            server.stop()
+        found = load_json(vw.path("found.png.json"))
+        self.assertEqual(found["pacs"]["studies"], [str(first.StudyInstanceUID)])
+        self.assertEqual(found["pacs"]["series"], [{"uid": str(first.SeriesInstanceUID), "instances": 140}])
+        self.assertEqual(found["pacs"]["error"], "")
+        state = load_json(vw.path("opened.png.json"))
+        self.assertEqual(state["dataset"]["state"], "ready")
+        self.assertEqual(state["pacs"]["retrieved"], 140)
+        self.assertIn(os.path.join("pacs", str(first.StudyInstanceUID), str(first.SeriesInstanceUID)),
+                      state["session"]["source"])
+        shot = load_png(vw.path("opened.png"))
+        self.assert_mpr_matches(self.head, shot, state, "axial", label="retrieved: ")
+        for root, _, names in os.walk(vw.workdir):
+            if os.path.commonpath([root, vw.path("orthanc")]) == vw.path("orthanc"):
+                continue  # the server's own files
+            for n in names:
+                if os.path.join(root, n) == creds:
+                    continue
+                with open(os.path.join(root, n), "rb") as f:
+                    self.assertNotIn(secret.encode(), f.read(), os.path.join(root, n))
+        self.assertNotIn(secret, p.stdout + p.stderr)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 // octoray-view's frame loop: input, dataset, views, window (see app.h for the data flow).
 #include "app.h"
+#include "pacs_panel.h"
 #include "util.h"
 
 #include <GLFW/glfw3.h>
@@ -206,10 +207,12 @@ App::App(const AppOptions& options) : options_(options) {
     session.camera.fovYDegrees = c.fovYDegrees;
     session.camera.orthoHeightMm = c.orthoHeightMm;
   }
+  pacs_ = std::make_unique<PacsPanel>();
   lastFrame_ = std::chrono::steady_clock::now();
 }
 
 App::~App() {
+  pacs_.reset();  // waits for a running search or retrieval
   if (stats_) std::fclose(stats_);
   context_->makeCurrent();
   mpr_ = {};
@@ -222,6 +225,10 @@ App::~App() {
 }
 
 // ---- opening data --------------------------------------------------------------------------
+
+std::filesystem::path App::cacheDir() const {
+  return options_.cacheDir.empty() ? defaultCacheDir() : options_.cacheDir;
+}
 
 void App::open(const std::string& path) {
   mpr_ = {};
@@ -236,8 +243,7 @@ void App::open(const std::string& path) {
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
   try {
-    const fs::path cache = options_.cacheDir.empty() ? defaultCacheDir() : options_.cacheDir;
-    dataset_ = std::make_unique<Dataset>(path, cache);
+    dataset_ = std::make_unique<Dataset>(path, cacheDir());
   } catch (const std::exception& e) {
     messages.push_back(e.what());
     return;
@@ -487,6 +493,7 @@ RoiStats App::roiStatsOf(const Measurement& m) {
 }
 
 bool App::converged() const {
+  if (pacs_ && pacs_->pending()) return false;  // a PACS job runs, or its result is not taken yet
   if (!dataset_) return true;
   if (dataset_->state() == Dataset::State::Importing) return false;
   if (dataset_->state() == Dataset::State::Failed) return true;
@@ -584,6 +591,7 @@ void App::frame() {
       messages.push_back(ex.what());
     }
   }
+  if (pacs_) pacs_->poll(*this);
   if (interactionFrames_ > 0 && !controller_.dragging()) --interactionFrames_;
   const bool interacting = controller_.dragging3d() || (controller_.dragging() && interactionFrames_ > 0) ||
                            interactionFrames_ > 0;
@@ -652,6 +660,7 @@ void App::frame() {
   drawStatusBar();
   if (showHelp) drawHelp();
   if (showFileDialog) drawFileDialog();
+  if (showPacs && pacs_) pacs_->draw(*this, &showPacs);
 
   ImGui::Render();
   glBindFramebuffer(GL_FRAMEBUFFER, 0);

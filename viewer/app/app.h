@@ -32,6 +32,8 @@ struct ImFont;
 
 namespace octoray::viewer {
 
+class PacsPanel;
+
 // The display cannot give the OpenGL 4.5 core context the renderer needs.
 class GlUnavailable : public Error {
  public:
@@ -193,7 +195,7 @@ class App {
   std::vector<WindowLevelPreset> wlPresets;
   std::vector<std::string> tfPresetNames;  // ours, then Slicer's
   std::vector<std::string> messages;       // errors shown in the window (each names a file)
-  bool showHelp = false, showFileDialog = false, showPanel = true;
+  bool showHelp = false, showFileDialog = false, showPanel = true, showPacs = false;
 
   Rect viewRect(ViewId v) const;
   std::optional<ViewId> viewAt(double x, double y) const;
@@ -201,6 +203,8 @@ class App {
   const MprView* mprView(ViewId v) const;
   void markInteraction();  // a control moved: interactive quality for a few frames
   void open(const std::string& path);
+  // Where imported stores and retrieved PACS series are kept.
+  std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
   void applyWindowLevelKey(int key);
   void selectTfPreset(const std::string& name);
@@ -260,6 +264,7 @@ class App {
   AppOptions options_;
   std::unique_ptr<gpu::WindowGlContext> context_;
   std::unique_ptr<Dataset> dataset_;
+  std::unique_ptr<PacsPanel> pacs_;
   std::unique_ptr<View3d> view3d_;
   std::unique_ptr<StoreSlicer> slicer_;
   std::array<std::unique_ptr<MprView>, 3> mpr_;

@@ -10,6 +10,7 @@
 #include <fstream>
 
 #include "app.h"
+#include "pacs_panel.h"
 #include "octoray/core/error.h"
 #include "octoray/gpu/image_io.h"
 #include "util.h"
@@ -49,6 +50,7 @@ nlohmann::json App::stateJson() {
   j["tool"] = toolName(controller_.tool);
   j["window"] = {fbWidth_, fbHeight_};
   j["messages"] = messages;
+  if (pacs_) j["pacs"] = pacs_->state();
   j["converged"] = converged();
   if (dataset_) {
     j["dataset"] = {{"path", dataset_->path()},

@@ -20,6 +20,7 @@ void App::drawPanels() {
   if (ImGui::BeginMainMenuBar()) {
     if (ImGui::BeginMenu("File")) {
       if (ImGui::MenuItem("Open\u2026", "Ctrl+O")) showFileDialog = true;
+      if (ImGui::MenuItem("PACS\u2026")) showPacs = true;
       if (ImGui::BeginMenu("Open recent", !recent_.empty())) {
         for (const auto& r : recent_) {
           if (ImGui::MenuItem(r.c_str())) open(r);

@@ -10,6 +10,7 @@
 #include <fstream>
 
 #include "app.h"
+#include "pacs_panel.h"
 #include "octoray/core/error.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/transfer/transfer_function_io.h"
@@ -150,7 +151,9 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     if (!value.is_number()) throw Error(options_.script, fmt::format("action {}: expected a number", name));
     return value.get<double>();
   };
-  if (name == "layout") setLayout(parseLayoutName(text()));
+  if (name == "pacs-panel") showPacs = value.get<bool>();
+  else if (name.starts_with("pacs-")) pacs_->action(*this, name, value);
+  else if (name == "layout") setLayout(parseLayoutName(text()));
   else if (name == "maximise") toggleMaximise(parseViewName(text()));
   else if (name == "tool") controller_.tool = parseToolName(text());
   else if (name == "preset") selectTfPreset(text());
