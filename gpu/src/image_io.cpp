@@ -6,6 +6,7 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <fmt/format.h>
+#include <unistd.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -47,8 +48,10 @@ void replaceWith(const std::filesystem::path& temporary, const std::filesystem::
   }
 }
 
+// A hidden temporary beside the target, named as the store's: .NAME.partial-PID.
 std::filesystem::path temporaryName(const std::filesystem::path& path) {
-  return path.string() + ".partial";
+  return path.parent_path() /
+         fmt::format(".{}.partial-{}", path.filename().string(), static_cast<long>(::getpid()));
 }
 
 Image readPng(const std::filesystem::path& path) {
@@ -119,7 +122,11 @@ Image readExr(const std::filesystem::path& path) {
 
 }  // namespace
 
-void writePng(const Image& image, const std::filesystem::path& path, PngEncoding encoding) {
+namespace {
+
+// Writes the PNG of `image` to `temporary` (messages name `path`).
+void writePngTo(const Image& image, const std::filesystem::path& path,
+                const std::filesystem::path& temporary, PngEncoding encoding) {
   checkImage(image, path);
   cv::Mat bgr(image.height, image.width, CV_8UC3);
   for (int y = 0; y < image.height; ++y) {
@@ -133,19 +140,20 @@ void writePng(const Image& image, const std::filesystem::path& path, PngEncoding
   }
   std::vector<uint8_t> bytes;
   if (!cv::imencode(".png", bgr, bytes)) throw Error(path.string(), "PNG encoding failed");
-  const std::filesystem::path temporary = temporaryName(path);
-  {
-    std::ofstream out(temporary, std::ios::binary);
-    out.write(reinterpret_cast<const char*>(bytes.data()),
-              static_cast<std::streamsize>(bytes.size()));
-    if (!out) throw Error(path.string(), "cannot write the PNG file");
+  std::ofstream out(temporary, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) {
+    std::error_code ec;
+    std::filesystem::remove(temporary, ec);
+    throw Error(path.string(), "cannot write the PNG file (missing folder, no permission or disk full?)");
   }
-  replaceWith(temporary, path);
 }
 
-void writeExr(const Image& image, const std::filesystem::path& path) {
+// Writes the EXR of `image` to `temporary` (messages name `path`).
+void writeExrTo(const Image& image, const std::filesystem::path& path,
+                const std::filesystem::path& temporary) {
   checkImage(image, path);
-  const std::filesystem::path temporary = temporaryName(path);
   try {
     Imf::Header header(image.width, image.height);
     header.compression() = Imf::ZIP_COMPRESSION;
@@ -172,7 +180,55 @@ void writeExr(const Image& image, const std::filesystem::path& path) {
     std::filesystem::remove(temporary, ec);
     throw Error(path.string(), fmt::format("cannot write the EXR file: {}", e.what()));
   }
+}
+
+}  // namespace
+
+void writePng(const Image& image, const std::filesystem::path& path, PngEncoding encoding) {
+  const std::filesystem::path temporary = temporaryName(path);
+  writePngTo(image, path, temporary, encoding);
   replaceWith(temporary, path);
+}
+
+void writeExr(const Image& image, const std::filesystem::path& path) {
+  const std::filesystem::path temporary = temporaryName(path);
+  writeExrTo(image, path, temporary);
+  replaceWith(temporary, path);
+}
+
+void writeImageOutputs(const Image& image, const ImageOutputs& outputs) {
+  const std::filesystem::path pngTemporary = temporaryName(outputs.png);
+  const std::filesystem::path exrTemporary =
+      outputs.exr.empty() ? std::filesystem::path() : temporaryName(outputs.exr);
+  auto removeTemporaries = [&] {
+    std::error_code ec;
+    std::filesystem::remove(pngTemporary, ec);
+    if (!exrTemporary.empty()) std::filesystem::remove(exrTemporary, ec);
+  };
+  try {
+    writePngTo(image, outputs.png, pngTemporary, outputs.encoding);
+    if (!outputs.exr.empty()) writeExrTo(image, outputs.exr, exrTemporary);
+  } catch (...) {
+    removeTemporaries();
+    throw;
+  }
+  // Both complete: into place. Should the second rename fail, the first output is taken
+  // back, so the command leaves both or neither.
+  std::error_code ec;
+  std::filesystem::rename(pngTemporary, outputs.png, ec);
+  if (ec) {
+    removeTemporaries();
+    throw Error(outputs.png.string(), "cannot rename the finished file into place: " + ec.message());
+  }
+  if (!exrTemporary.empty()) {
+    std::filesystem::rename(exrTemporary, outputs.exr, ec);
+    if (ec) {
+      removeTemporaries();
+      std::error_code ignored;
+      std::filesystem::remove(outputs.png, ignored);
+      throw Error(outputs.exr.string(), "cannot rename the finished file into place: " + ec.message());
+    }
+  }
 }
 
 Image readImage(const std::filesystem::path& path) {

@@ -17,6 +17,7 @@
 // and bricks streamed in the background (the interaction benchmark; camera_path.h).
 
 #include <fmt/format.h>
+#include <unistd.h>
 #include <tbb/global_control.h>
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -110,6 +111,11 @@ gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
   }
   const auto source = openVolume(path);
   return gpu::reference::ReferenceVolume::fromSource(*source);
+}
+
+// The PNG and the EXR together: both or neither (gpu::writeImageOutputs).
+void writeOutputs(const gpu::Image& image, const Arguments& a) {
+  gpu::writeImageOutputs(image, {a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, a.exr});
 }
 
 // Whether a volume holds Hounsfield units, and its value range: what choosing a default
@@ -427,8 +433,7 @@ int runReference(const Arguments& a) {
   const auto& result = converged.result;
   const double renderMs = millisecondsSince(start);
 
-  gpu::writePng(result.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
-  if (!a.exr.empty()) gpu::writeExr(result.image, a.exr);
+  writeOutputs(result.image, a);
 
   if (a.json) {
     const nlohmann::json report = {
@@ -520,8 +525,7 @@ int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::Tran
       }
     }
   }
-  gpu::writePng(last.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
-  if (!a.exr.empty()) gpu::writeExr(last.image, a.exr);
+  writeOutputs(last.image, a);
   if (!a.statsOut.empty()) writeStats(frames, a.statsOut);
 
   const auto [rss, peak] = residentMib();
@@ -688,8 +692,7 @@ int runGpu(const Arguments& a) {
                                           (static_cast<double>(view.width) * view.height)}};
   }
 
-  gpu::writePng(first.image, a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp);
-  if (!a.exr.empty()) gpu::writeExr(first.image, a.exr);
+  writeOutputs(first.image, a);
 
   if (a.json) {
     options.stats = false;  // the timed variant's defines, not the counting one's
@@ -724,7 +727,19 @@ int runGpu(const Arguments& a) {
   return 0;
 }
 
+// Output folders are checked before the (possibly long) rendering.
+void checkOutputFolders(const Arguments& a) {
+  for (const std::string& out : {a.output, a.exr}) {
+    if (out.empty()) continue;
+    const std::filesystem::path folder = std::filesystem::absolute(out).parent_path();
+    std::error_code ec;
+    if (!std::filesystem::is_directory(folder, ec)) throw Error(out, "its folder does not exist");
+    if (::access(folder.c_str(), W_OK) != 0) throw Error(out, "its folder is not writable");
+  }
+}
+
 int run(Arguments a) {
+  checkOutputFolders(a);
   resolveDefaults(a);
   std::optional<tbb::global_control> threadLimit;
   if (a.threads > 0) {

@@ -148,6 +148,28 @@ TEST(ImageIo, PngRoundTripWithinOneLevel) {
   EXPECT_THROW(readImage(dir / "missing.exr"), Error);
 }
 
+// The PNG and the EXR of a command are written together or not at all; temporaries are
+// hidden (.NAME.partial-PID) and never left behind.
+TEST(ImageIo, OutputsAreWrittenTogetherOrNotAtAll) {
+  const Image image = gradientImage(17, 9);
+  const auto dir = freshTempDir("outputs");
+  writeImageOutputs(image, {dir / "a.png", PngEncoding::Clamp, dir / "a.exr"});
+  EXPECT_EQ(readImage(dir / "a.exr").rgba, image.rgba);
+  EXPECT_TRUE(std::filesystem::exists(dir / "a.png"));
+  // The EXR's folder is a file: the EXR cannot be made, so the PNG is not left either.
+  std::ofstream(dir / "not-a-folder") << "x";
+  EXPECT_THROW(writeImageOutputs(image, {dir / "b.png", PngEncoding::Clamp, dir / "not-a-folder" / "b.exr"}),
+               Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "b.png"));
+  // The EXR's name is a folder: the rename fails after both were written; neither stays.
+  std::filesystem::create_directory(dir / "c.exr");
+  EXPECT_THROW(writeImageOutputs(image, {dir / "c.png", PngEncoding::Clamp, dir / "c.exr"}), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "c.png"));
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    EXPECT_EQ(e.path().filename().string().find("partial"), std::string::npos) << e.path();
+  }
+}
+
 TEST(ImageMetrics, CompareCountsAndMeasures) {
   const Image a = gradientImage(32, 24);
   ImageMetrics same = compare(a, a);

@@ -92,6 +92,18 @@ TEST_F(RenderTools, ModesAndErrors) {
       {render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone", "--reference"});
   EXPECT_EQ(bad.exitCode, 1);
   EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
+  // An output that cannot be written: exit 1 naming it, before rendering, and nothing left
+  // behind (not the PNG, not a temporary).
+  const std::string lonePng = (dir / "lone.png").string();
+  const ProcessResult missingFolder = runProcess({render, nrrd, "-o", lonePng, "--exr",
+                                                  "/nonexistent-octoray/x.exr", "--preset", "bone", "--reference"});
+  EXPECT_EQ(missingFolder.exitCode, 1);
+  EXPECT_NE(missingFolder.err.find("/nonexistent-octoray/x.exr: its folder does not exist"), std::string::npos)
+      << missingFolder.err;
+  EXPECT_FALSE(std::filesystem::exists(lonePng));
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    EXPECT_EQ(e.path().filename().string().find(".partial"), std::string::npos) << e.path();
+  }
   // GPU-only options with --reference, and --gpu with --reference, are usage errors.
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--lod-pixels", "2"})
                 .exitCode,

@@ -1,7 +1,7 @@
 #pragma once
 // Image files. PNG (8-bit, through OpenCV) for looking at and for documents; OpenEXR (float
-// R G B A Z, through OpenEXR) for exact comparison. Both write to a temporary name and rename
-// it when complete. Read errors throw octoray::Error naming the file.
+// R G B A Z, through OpenEXR) for exact comparison. Both write to a hidden temporary name
+// (.NAME.partial-PID) and rename it when complete. Read errors throw octoray::Error naming the file.
 //
 // PNG: the premultiplied colour is the colour over a black background, so it is written as
 // RGB (no alpha channel). Encoding: by default each channel is clamped to [0, 1] and scaled
@@ -22,6 +22,16 @@ enum class PngEncoding { Clamp, Srgb };
 void writePng(const Image& image, const std::filesystem::path& path,
               PngEncoding encoding = PngEncoding::Clamp);
 void writeExr(const Image& image, const std::filesystem::path& path);
+
+// A command's image outputs: the PNG and, when named, the EXR of the same picture.
+struct ImageOutputs {
+  std::filesystem::path png;
+  PngEncoding encoding = PngEncoding::Clamp;
+  std::filesystem::path exr;  // empty: none
+};
+// Writes both to hidden temporaries beside their targets (.NAME.partial-PID) and renames them
+// only when both are complete: a failure (a missing folder, a full disk) leaves neither.
+void writeImageOutputs(const Image& image, const ImageOutputs& outputs);
 
 // Reads a PNG (8 or 16 bit; grey, RGB or RGBA) as float in [0, 1] with the values as stored (no
 // decoding of sRGB), alpha 1 where the file has none, and no depth; or an EXR's R G B A
