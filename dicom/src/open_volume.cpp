@@ -78,6 +78,7 @@ std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOpti
     return openNifti(path);
   }
   if (isTiffName(name)) return openTiffStack(path, options.tiffSpacingMm);
+  if (name.ends_with(".vdb")) return openVdb(path);
   // DICOMDIR, .dcm, or no telling extension: DICOM discovery decides.
   return openDicom(path, options);
 }

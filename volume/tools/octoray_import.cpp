@@ -2,6 +2,7 @@
 //   --list PATH               the series table
 //   --inspect PATH            resolved geometry, value range and every warning of one volume
 //   --export OUT.nii[.gz] PATH  the resolved volume as NIfTI (shear kept in the sform)
+//   --export OUT.vdb PATH       the resolved volume as a sparse OpenVDB grid (--vdb-threshold)
 //   PATH -o OUT.octoray       the brick octree store (volume/)
 // --json output follows docs/import-json.md (schema version 1).
 
@@ -11,10 +12,13 @@
 #include <sys/resource.h>
 
 #include <atomic>
+#include <cctype>
 #include <csignal>
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <limits>
+#include <optional>
 #include <vector>
 
 #include <fmt/format.h>
@@ -25,6 +29,7 @@
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/nifti_export.h"
+#include "octoray/dicom/vdb.h"
 #include "octoray/volume/store_builder.h"
 
 namespace {
@@ -39,6 +44,7 @@ struct Arguments {
   bool list = false;
   bool inspect = false;
   std::string exportPath;
+  std::optional<double> vdbThresholdHu;  // set only with --vdb-threshold
   bool json = false;
   std::string series;
   double sliceSpacingMm = 0;
@@ -176,7 +182,8 @@ bool isDicomInput(const std::string& path, const Arguments& a) {
     return true;
   }
   const std::string name = fs::path(path).filename().string();
-  for (const char* ext : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".tif", ".tiff"}) {
+  for (const char* ext :
+       {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".tif", ".tiff", ".vdb"}) {
     const std::string e = ext;
     if (name.size() >= e.size() && name.compare(name.size() - e.size(), e.size(), e) == 0) {
       return false;
@@ -346,6 +353,66 @@ int buildStoreFile(const Arguments& a) {
   return 0;
 }
 
+enum class ExportFormat { Nifti, Vdb };
+
+// The export format from OUT's extension; a threshold without a .vdb output is a mistake.
+ExportFormat exportFormat(const Arguments& a) {
+  std::string name = std::filesystem::path(a.exportPath).filename().string();
+  for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const bool vdb = name.ends_with(".vdb");
+  if (!vdb && !name.ends_with(".nii") && !name.ends_with(".nii.gz")) {
+    throw Error(a.exportPath, "unknown export format: name the output .nii, .nii.gz or .vdb");
+  }
+  if (!vdb && a.vdbThresholdHu) {
+    throw Error(a.exportPath, "--vdb-threshold applies only to a .vdb export");
+  }
+  return vdb ? ExportFormat::Vdb : ExportFormat::Nifti;
+}
+
+int exportVolume(const Arguments& a) {
+  const ExportFormat format = exportFormat(a);
+  std::optional<dicom::DicomScan> scan;
+  std::optional<std::size_t> index;
+  auto source = openInput(a, scan, index);
+  cli::ProgressBar bar("exporting");
+  auto progress = [&](int64_t done, int64_t total) {
+    bar.update(static_cast<std::size_t>(done), static_cast<std::size_t>(total));
+  };
+  std::optional<VdbExportReport> vdb;
+  VdbExportOptions vdbOptions;
+  if (format == ExportFormat::Vdb) {
+    vdbOptions.thresholdHu = a.vdbThresholdHu.value_or(vdbOptions.thresholdHu);
+    vdbOptions.progress = progress;
+    vdb = exportVdb(*source, a.exportPath, vdbOptions);
+  } else {
+    NiftiExportOptions options;
+    options.progress = progress;
+    exportNifti(*source, a.exportPath, options);
+  }
+  bar.finish();
+  const VolumeInfo& info = source->info();
+  if (a.json) {
+    json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion},
+              {"path", a.path}, {"output", a.exportPath}, {"dimensions", info.dims},
+              {"warnings", info.warnings}};
+    if (vdb) {
+      j["vdbThreshold"] = vdbOptions.thresholdHu;
+      j["activeVoxels"] = vdb->activeVoxels;
+      j["bytesOnDisk"] = vdb->bytesOnDisk;
+    }
+    std::cout << j.dump(2) << "\n";
+  } else {
+    fmt::print("wrote {} ({} x {} x {})\n", a.exportPath, info.dims[0], info.dims[1], info.dims[2]);
+    if (vdb) {
+      fmt::print("{} active voxels ({:.1f}%) at or above {} {}, {:.1f} MiB on disk\n",
+                 vdb->activeVoxels, 100.0 * double(vdb->activeVoxels) / double(info.sampleCount()),
+                 vdbOptions.thresholdHu, info.unit, double(vdb->bytesOnDisk) / 1048576.0);
+    }
+    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
+  }
+  return 0;
+}
+
 int run(const Arguments& a) {
   if (a.list) {
     cli::ProgressBar bar("scanning");
@@ -371,27 +438,7 @@ int run(const Arguments& a) {
     return 0;
   }
   if (!a.storePath.empty()) return buildStoreFile(a);
-  std::optional<dicom::DicomScan> scan;
-  std::optional<std::size_t> index;
-  auto source = openInput(a, scan, index);
-  cli::ProgressBar bar("exporting");
-  NiftiExportOptions options;
-  options.progress = [&](int64_t done, int64_t total) {
-    bar.update(static_cast<std::size_t>(done), static_cast<std::size_t>(total));
-  };
-  exportNifti(*source, a.exportPath, options);
-  bar.finish();
-  const VolumeInfo& info = source->info();
-  if (a.json) {
-    json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion},
-              {"path", a.path}, {"output", a.exportPath}, {"dimensions", info.dims},
-              {"warnings", info.warnings}};
-    std::cout << j.dump(2) << "\n";
-  } else {
-    fmt::print("wrote {} ({} x {} x {})\n", a.exportPath, info.dims[0], info.dims[1], info.dims[2]);
-    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
-  }
-  return 0;
+  return exportVolume(a);
 }
 
 }  // namespace
@@ -403,7 +450,8 @@ int main(int argc, char** argv) {
   auto* inspect = app.add_flag("--inspect", a.inspect,
                                "Print the resolved geometry, value range and warnings");
   auto* exportOpt = app.add_option("--export", a.exportPath,
-                                   "Write the resolved volume as NIfTI (.nii or .nii.gz)");
+                                   "Write the resolved volume as NIfTI (.nii or .nii.gz) or as a "
+                                   "sparse OpenVDB grid (.vdb)");
   auto* storeOpt = app.add_option("-o,--output", a.storePath,
                                   "Build the brick octree store OUT from PATH");
   list->excludes(inspect)->excludes(exportOpt)->excludes(storeOpt);
@@ -418,10 +466,14 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"lz4", "zstd", "none"}));
   app.add_option("--store-format", a.storeFormat, "Store: sample format")
       ->check(CLI::IsMember({"auto", "uint16", "float32"}));
+  app.add_option("--vdb-threshold", a.vdbThresholdHu,
+                 "VDB export: samples >= HU are active voxels, the rest air (-1000); "
+                 "default -900")
+      ->needs(exportOpt);
   app.add_option("--memory-budget", a.memoryBudgetMiB, "Store: build memory budget in MiB")
       ->check(CLI::Range(64, 1 << 20));
   app.add_option("path", a.path, "DICOM folder, DICOMDIR, DICOM file, or a .nrrd/.nhdr/.mhd/"
-                                 ".mha/.nii/.nii.gz/.tif file or TIFF folder")
+                                 ".mha/.nii/.nii.gz/.tif/.vdb file or TIFF folder")
       ->required();
   app.add_flag("--json", a.json, "Machine-readable output (docs/import-json.md)");
   app.add_option("--series", a.series, "Series table index or SeriesInstanceUID");
@@ -434,6 +486,12 @@ int main(int argc, char** argv) {
   app.add_option("--raw-spacing", a.rawSpacing, "Raw volume: spacing in mm, x,y,z");
   app.add_option("--raw-header-bytes", a.rawHeaderBytes, "Raw volume: bytes before the data");
   app.add_option("--tiff-spacing", a.tiffSpacing, "TIFF stack: spacing in mm, x,y,z");
+  app.footer(
+      "Examples:\n"
+      "  octoray-import --list scans/                         # the series found under scans/\n"
+      "  octoray-import --export head.nii.gz scans/ --series 2  # series 2 of the table, NIfTI\n"
+      "  octoray-import --export head.vdb --vdb-threshold -500 scans/  # >= -500 HU, OpenVDB\n"
+      "  octoray-import scans/ -o head.octoray                # the store octoray-view reads\n");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -444,6 +502,14 @@ int main(int argc, char** argv) {
     std::cerr << "octoray-import: choose one of --list, --inspect, --export OUT or -o OUT\n"
               << app.help();
     return 2;
+  }
+  if (!a.exportPath.empty()) {
+    try {
+      exportFormat(a);
+    } catch (const Error& e) {
+      std::cerr << "octoray-import: " << e.what() << "\n";
+      return 2;
+    }
   }
   return cli::runTool("octoray-import", [&] { return run(a); });
 }

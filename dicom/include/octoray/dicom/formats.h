@@ -1,8 +1,8 @@
 #pragma once
 // Non-DICOM inputs behind the same VolumeSource interface: raw volumes described on the
-// command line, NRRD and MetaImage (header + raw or compressed data), NIfTI-1/2, and TIFF
-// stacks (a folder of single-page TIFFs, or one multi-page TIFF). And openVolume(), which
-// picks the reader from what a path is.
+// command line, NRRD and MetaImage (header + raw or compressed data), NIfTI-1/2, TIFF stacks
+// (a folder of single-page TIFFs, or one multi-page TIFF) and OpenVDB grids. And openVolume(),
+// which picks the reader from what a path is.
 
 #include <array>
 #include <cstdint>
@@ -34,6 +34,10 @@ std::unique_ptr<VolumeSource> openNrrd(const std::string& path);
 std::unique_ptr<VolumeSource> openMetaImage(const std::string& path);
 std::unique_ptr<VolumeSource> openNifti(const std::string& path);
 std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacingMm = {1, 1, 1});
+// The "density" float grid, else the first float or double grid, over its active voxels'
+// bounding box (or the index box octoray's export recorded); the grid's transform must be
+// linear and becomes patientFromIndex. Inactive voxels read as the background (vdb.h).
+std::unique_ptr<VolumeSource> openVdb(const std::string& path);
 
 struct OpenOptions {
   std::string series;          // DICOM: table index or SeriesInstanceUID; empty = default
@@ -44,7 +48,7 @@ struct OpenOptions {
 };
 
 // Opens any supported input: a DICOM folder, DICOMDIR or file; .nrrd/.nhdr; .mhd/.mha;
-// .nii/.nii.gz; .tif/.tiff or a folder of them; or a raw file when options.raw is set.
+// .nii/.nii.gz; .tif/.tiff or a folder of them; .vdb; or a raw file when options.raw is set.
 std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOptions& options = {});
 
 }  // namespace octoray

@@ -18,7 +18,7 @@ namespace octoray {
 struct VolumeInfo {
   std::array<int64_t, 3> dims{0, 0, 0};  // samples along i (columns), j (rows), k (slices)
   Mat4 patientFromIndex;                 // index -> patient (LPS, mm); may contain shear
-  std::string format;                    // "dicom", "raw", "nrrd", "metaimage", "nifti", "tiff"
+  std::string format;                    // "dicom", "raw", "nrrd", "metaimage", "nifti", "tiff", "vdb"
   std::string sourcePath;                // the file or folder the volume came from
   std::string modality;                  // DICOM modality ("CT", "MR", ...) or empty
   std::string description;               // series description or file name

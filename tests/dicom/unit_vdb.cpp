@@ -1,0 +1,382 @@
+// OpenVDB export and input: a small sheared volume with values below, at and above the
+// threshold, exported and read back through our reader and, independently, through OpenVDB's
+// own API; damaged files, non-affine transforms and other grid types written with OpenVDB.
+
+#include <gtest/gtest.h>
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include <fmt/format.h>
+
+#include "format_test_helpers.h"
+#include "octoray/core/error.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/dicom/vdb.h"
+#include "test_paths.h"
+
+namespace octoray {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace formats_test;
+using VoxelFunction = std::function<float(int64_t, int64_t, int64_t)>;
+
+// An in-memory source from a function; optionally fails when slice `failAtSlice` is read.
+class FunctionSource final : public VolumeSource {
+ public:
+  FunctionSource(std::array<int64_t, 3> dims, Mat4 patientFromIndex, VoxelFunction value,
+                 int64_t failAtSlice = -1)
+      : value_(std::move(value)), failAtSlice_(failAtSlice) {
+    info_.dims = dims;
+    info_.patientFromIndex = patientFromIndex;
+    info_.integerValues = false;
+    info_.format = "memory";
+    info_.description = "phantom head";
+    info_.modality = "CT";
+    info_.unit = "HU";
+  }
+  const VolumeInfo& info() const override { return info_; }
+  void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) override {
+    checkSlabRequest(info_, firstSlice, sliceCount, out.size());
+    if (failAtSlice_ >= firstSlice && failAtSlice_ < firstSlice + sliceCount) {
+      throw Error("memory", "simulated read failure");
+    }
+    maxSlabSlices = std::max(maxSlabSlices, sliceCount);
+    std::size_t n = 0;
+    for (int64_t k = firstSlice; k < firstSlice + sliceCount; ++k)
+      for (int64_t j = 0; j < info_.dims[1]; ++j)
+        for (int64_t i = 0; i < info_.dims[0]; ++i) out[n++] = value_(i, j, k);
+  }
+  int64_t maxSlabSlices = 0;
+
+ private:
+  VolumeInfo info_;
+  VoxelFunction value_;
+  int64_t failAtSlice_;
+};
+
+// A gantry tilt (the slice step leans along y) on an oblique in-plane rotation.
+Mat4 tiltedAffine() {
+  return Mat4::fromColumns({0.3, 0.4, 0}, {-0.6, 0.45, 0}, {0, 0.2, 1.25}, {-100.5, 20.25, 7});
+}
+
+constexpr std::array<int64_t, 3> kDims{21, 19, 13};  // not multiples of the 8-voxel leaves
+
+// Air, exactly the threshold, just below it, fractional tissue values, and one 8x8x8 block of
+// one value (stored as a tile rather than a leaf).
+float headValue(int64_t i, int64_t j, int64_t k) {
+  if (i >= 8 && i < 16 && j < 8 && k >= 8) return 40.0f;
+  switch ((i * 7 + j * 13 + k * 29) % 6) {
+    case 0:
+      return -1024.0f;
+    case 1:
+      return -900.0f;
+    case 2:
+      return -900.25f;
+    case 3:
+      return 0.125f * static_cast<float>(i * j) - 50.0f;
+    case 4:
+      return 1200.5f + static_cast<float>(k);
+    default:
+      return -950.0f + static_cast<float>(j);
+  }
+}
+
+int64_t countAtOrAbove(double threshold) {
+  int64_t n = 0;
+  for (int64_t k = 0; k < kDims[2]; ++k)
+    for (int64_t j = 0; j < kDims[1]; ++j)
+      for (int64_t i = 0; i < kDims[0]; ++i) n += headValue(i, j, k) >= threshold;
+  return n;
+}
+
+void initializeOpenVdb() { openvdb::initialize(); }
+
+// The grid of `file` as OpenVDB itself reads it (not through our reader).
+openvdb::FloatGrid::Ptr readWithOpenVdb(const fs::path& file) {
+  initializeOpenVdb();
+  openvdb::io::File vdb(file.string());
+  vdb.open(false);
+  const openvdb::GridPtrVecPtr grids = vdb.getGrids();
+  vdb.close();
+  EXPECT_EQ(grids->size(), 1u);
+  return openvdb::gridPtrCast<openvdb::FloatGrid>(grids->front());
+}
+
+// Writes `grids` with OpenVDB's own writer.
+void writeWithOpenVdb(const fs::path& file, const openvdb::GridPtrVec& grids) {
+  initializeOpenVdb();
+  openvdb::io::File(file.string()).write(grids);
+}
+
+bool onlyFiles(const fs::path& dir, const std::set<std::string>& names) {
+  std::set<std::string> found;
+  for (const auto& e : fs::directory_iterator(dir)) found.insert(e.path().filename().string());
+  return found == names;
+}
+
+// ---- export ---------------------------------------------------------------------------------
+
+TEST(VdbExport, ActiveVoxelsKeepExactValuesAndTheAffine) {
+  const auto dir = test::freshTempDir("vdb_roundtrip");
+  const fs::path file = dir / "head.vdb";
+  FunctionSource source(kDims, tiltedAffine(), headValue);
+  int64_t lastDone = 0, lastTotal = 0;
+  VdbExportOptions options;
+  options.progress = [&](int64_t done, int64_t total) {
+    EXPECT_GT(done, lastDone);
+    lastDone = done;
+    lastTotal = total;
+  };
+  const VdbExportReport report = exportVdb(source, file.string(), options);
+  EXPECT_EQ(lastDone, kDims[2]);
+  EXPECT_EQ(lastTotal, kDims[2]);
+  EXPECT_LE(source.maxSlabSlices, 8) << "the volume must be read a slab at a time";
+  const int64_t expectedActive = countAtOrAbove(-900);
+  EXPECT_EQ(report.activeVoxels, expectedActive);
+  EXPECT_EQ(report.bytesOnDisk, fs::file_size(file));
+  EXPECT_TRUE(onlyFiles(dir, {"head.vdb"})) << "a temporary file was left behind";
+
+  // Independently, through OpenVDB: the active set, the values, the transform, the metadata.
+  const openvdb::FloatGrid::Ptr grid = readWithOpenVdb(file);
+  ASSERT_TRUE(grid) << "not a float grid";
+  EXPECT_EQ(grid->getName(), "density");
+  EXPECT_EQ(grid->background(), -1000.0f);
+  EXPECT_EQ(grid->getGridClass(), openvdb::GRID_UNKNOWN);
+  EXPECT_EQ(grid->activeVoxelCount(), static_cast<openvdb::Index64>(expectedActive));
+  EXPECT_EQ(grid->evalActiveVoxelBoundingBox(),
+            openvdb::CoordBBox(openvdb::Coord(0, 0, 0), openvdb::Coord(20, 18, 12)));
+  const auto accessor = grid->getConstAccessor();
+  int64_t mismatches = 0;
+  for (int64_t k = 0; k < kDims[2]; ++k)
+    for (int64_t j = 0; j < kDims[1]; ++j)
+      for (int64_t i = 0; i < kDims[0]; ++i) {
+        const openvdb::Coord ijk(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+        const float v = headValue(i, j, k);
+        const bool active = v >= -900.0f;
+        mismatches += accessor.isValueOn(ijk) != active;
+        mismatches += accessor.getValue(ijk) != (active ? v : -1000.0f);
+        // The grid transform maps index to patient LPS exactly as our affine does.
+        const openvdb::Vec3d world = grid->indexToWorld(openvdb::Vec3d(ijk.asVec3d()));
+        const Vec3 expected = tiltedAffine().transformPoint(
+            {static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+        for (int a = 0; a < 3; ++a) EXPECT_NEAR(world[a], expected[a], 1e-9);
+      }
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_TRUE(grid->transform().isLinear());
+
+  std::set<std::string> keys;
+  for (auto it = grid->beginMeta(); it != grid->endMeta(); ++it) keys.insert(it->first);
+  for (const char* key : {vdb_meta::kCoordinates, vdb_meta::kUnits, vdb_meta::kValueUnit,
+                          vdb_meta::kThreshold, vdb_meta::kDescription, vdb_meta::kModality}) {
+    EXPECT_TRUE(keys.count(key)) << key;
+  }
+  EXPECT_EQ(grid->metaValue<std::string>(vdb_meta::kCoordinates), "LPS");
+  EXPECT_EQ(grid->metaValue<std::string>(vdb_meta::kUnits), "mm");
+  EXPECT_EQ(grid->metaValue<std::string>(vdb_meta::kValueUnit), "HU");
+  EXPECT_EQ(grid->metaValue<double>(vdb_meta::kThreshold), -900.0);
+  EXPECT_EQ(grid->metaValue<std::string>(vdb_meta::kDescription), "phantom head");
+  // No patient identifiers: only OpenVDB's own keys and ours.
+  const std::set<std::string> openVdbKeys = {
+      "class",           "creator",          "name",           "file_bbox_min",
+      "file_bbox_max",   "file_compression", "file_mem_bytes", "file_voxel_count",
+      "is_local_space",  "is_saved_as_half_float", "vector_type"};
+  for (const std::string& key : keys) {
+    EXPECT_TRUE(key.rfind("octoray_", 0) == 0 || openVdbKeys.count(key)) << key;
+    std::string lower = key;
+    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    for (const char* banned : {"patient", "birth", "date", "accession", "institution"}) {
+      EXPECT_EQ(lower.find(banned), std::string::npos) << key;
+    }
+  }
+
+  // Through our reader: the same extent, affine and samples, air where inactive.
+  const auto back = openVdb(file.string());
+  const VolumeInfo& info = back->info();
+  EXPECT_EQ(info.format, "vdb");
+  EXPECT_EQ(info.dims, kDims);
+  expectAffineNear(info.patientFromIndex, tiltedAffine(), 1e-9);
+  EXPECT_EQ(info.unit, "HU");
+  EXPECT_EQ(info.modality, "CT");
+  EXPECT_EQ(info.description, "phantom head");
+  EXPECT_FALSE(info.integerValues);
+  EXPECT_EQ(info.valueLowerBound, -1000.0);
+  EXPECT_EQ(info.valueUpperBound, 1200.5 + 12);
+  EXPECT_TRUE(info.warnings.empty()) << info.warnings.front();
+  expectValues(*back, 5, [](int64_t i, int64_t j, int64_t k) {
+    const float v = headValue(i, j, k);
+    return v >= -900.0f ? v : -1000.0f;
+  });
+  // openVolume picks the reader by extension.
+  EXPECT_EQ(openVolume(file.string())->info().format, "vdb");
+}
+
+TEST(VdbExport, ActiveCountFollowsTheThreshold) {
+  const auto dir = test::freshTempDir("vdb_threshold");
+  for (double threshold : {-2000.0, -900.0, -900.125, 0.0, 1000.0}) {
+    SCOPED_TRACE(threshold);
+    FunctionSource source(kDims, tiltedAffine(), headValue);
+    VdbExportOptions options;
+    options.thresholdHu = threshold;
+    const fs::path file = dir / "t.vdb";
+    const VdbExportReport report = exportVdb(source, file.string(), options);
+    EXPECT_EQ(report.activeVoxels, countAtOrAbove(threshold));
+    EXPECT_EQ(readWithOpenVdb(file)->activeVoxelCount(),
+              static_cast<openvdb::Index64>(countAtOrAbove(threshold)));
+    EXPECT_EQ(readWithOpenVdb(file)->metaValue<double>(vdb_meta::kThreshold), threshold);
+  }
+  EXPECT_TRUE(onlyFiles(dir, {"t.vdb"}));
+}
+
+TEST(VdbExport, FailureLeavesNoFile) {
+  const auto dir = test::freshTempDir("vdb_fail");
+  const fs::path file = dir / "f.vdb";
+  FunctionSource failing(kDims, tiltedAffine(), headValue, 10);
+  EXPECT_THROW(exportVdb(failing, file.string()), Error);
+  EXPECT_TRUE(fs::is_empty(dir)) << "a partial or temporary file was left behind";
+
+  // Nothing reaches the threshold: the grid would be empty, which is an error, not a file.
+  FunctionSource air({9, 9, 9}, tiltedAffine(), [](int64_t, int64_t, int64_t) { return -1000.0f; });
+  expectErrorMentioning([&] { exportVdb(air, file.string()); }, "threshold");
+  EXPECT_TRUE(fs::is_empty(dir));
+
+  // A failed export leaves an existing file untouched.
+  writeFile(file, "previous contents");
+  EXPECT_THROW(exportVdb(failing, file.string()), Error);
+  EXPECT_TRUE(onlyFiles(dir, {"f.vdb"}));
+  std::ifstream in(file);
+  std::string contents((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(contents, "previous contents");
+
+  FunctionSource ok({2, 2, 2}, tiltedAffine(), headValue);
+  expectErrorMentioning([&] { exportVdb(ok, (dir / "no_such_folder" / "x.vdb").string()); },
+                        "x.vdb");
+}
+
+// ---- input ----------------------------------------------------------------------------------
+
+TEST(VdbFormat, ForeignGridUsesItsActiveBoundingBox) {
+  const auto dir = test::freshTempDir("vdb_foreign");
+  initializeOpenVdb();
+  // Double values, a negative-index box, a scale-and-translate map, background 0, no metadata.
+  auto grid = openvdb::DoubleGrid::create(0.0);
+  grid->setTransform(openvdb::math::Transform::createLinearTransform(0.5));
+  grid->transform().postTranslate(openvdb::Vec3d(10, -20, 30));
+  auto accessor = grid->getAccessor();
+  accessor.setValue(openvdb::Coord(-5, 3, 2), 7.0);
+  accessor.setValue(openvdb::Coord(4, 9, 6), -3.0);
+  accessor.setValue(openvdb::Coord(0, 5, 4), 2.5);
+  grid->setName("temperature");
+  auto other = openvdb::Vec3SGrid::create();
+  other->setName("velocity");
+  writeWithOpenVdb(dir / "foreign.vdb", {other, grid});
+
+  const auto source = openVdb((dir / "foreign.vdb").string());
+  const VolumeInfo& info = source->info();
+  EXPECT_EQ(info.dims, (std::array<int64_t, 3>{10, 7, 5}));
+  // patientFromIndex = 0.5 * (index + box min) + translation.
+  expectAffineNear(info.patientFromIndex,
+                   Mat4::fromColumns({0.5, 0, 0}, {0, 0.5, 0}, {0, 0, 0.5},
+                                     {10 - 2.5, -20 + 1.5, 30 + 1}),
+                   1e-12);
+  EXPECT_FALSE(info.integerValues);
+  EXPECT_EQ(info.valueLowerBound, -3.0);
+  EXPECT_EQ(info.valueUpperBound, 7.0);
+  EXPECT_EQ(info.description, "foreign.vdb");
+  std::string warnings;
+  for (const auto& w : info.warnings) warnings += w + "\n";
+  EXPECT_NE(warnings.find("'velocity' (vec3s)"), std::string::npos) << warnings;
+  EXPECT_NE(warnings.find("read 'temperature'"), std::string::npos) << warnings;
+  EXPECT_NE(warnings.find("LPS"), std::string::npos) << warnings;
+  expectValues(*source, 3, [](int64_t i, int64_t j, int64_t k) {
+    if (i == 0 && j == 0 && k == 0) return 7.0f;
+    if (i == 9 && j == 6 && k == 4) return -3.0f;
+    if (i == 5 && j == 2 && k == 2) return 2.5f;
+    return 0.0f;
+  });
+}
+
+TEST(VdbFormat, TheDensityGridIsPreferred) {
+  const auto dir = test::freshTempDir("vdb_density");
+  initializeOpenVdb();
+  openvdb::GridPtrVec grids;
+  for (const char* name : {"albedo", "density", "flame"}) {
+    auto grid = openvdb::FloatGrid::create(0.0f);
+    grid->tree().setValue(openvdb::Coord(1, 2, 3), std::string(name) == "density" ? 2.0f : 1.0f);
+    grid->setName(name);
+    grids.push_back(grid);
+  }
+  writeWithOpenVdb(dir / "smoke.vdb", grids);
+  const auto source = openVdb((dir / "smoke.vdb").string());
+  EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{1, 1, 1}));
+  EXPECT_TRUE(source->info().integerValues);
+  expectValues(*source, 1, [](int64_t, int64_t, int64_t) { return 2.0f; });
+}
+
+TEST(VdbFormat, NonAffineTransformIsAClearError) {
+  const auto dir = test::freshTempDir("vdb_frustum");
+  initializeOpenVdb();
+  auto grid = openvdb::FloatGrid::create(-1000.0f);
+  const openvdb::BBoxd frustumBox(openvdb::Vec3d(0, 0, 0), openvdb::Vec3d(10, 10, 10));
+  grid->setTransform(openvdb::math::Transform::createFrustumTransform(frustumBox, 0.5, 2.0, 1.0));
+  grid->tree().setValue(openvdb::Coord(1, 2, 3), 100.0f);
+  writeWithOpenVdb(dir / "frustum.vdb", {grid});
+  ASSERT_FALSE(readWithOpenVdb(dir / "frustum.vdb")->transform().isLinear());
+  const std::string path = (dir / "frustum.vdb").string();
+  expectErrorMentioning([&] { openVdb(path); }, path);
+  expectErrorMentioning([&] { openVdb(path); }, "non-affine transform (frustum)");
+}
+
+TEST(VdbFormat, GridsThatAreNotVolumesAreClearErrors) {
+  const auto dir = test::freshTempDir("vdb_types");
+  initializeOpenVdb();
+  auto vectors = openvdb::Vec3SGrid::create();
+  vectors->tree().setValue(openvdb::Coord(0, 0, 0), openvdb::Vec3s(1, 2, 3));
+  vectors->setName("velocity");
+  writeWithOpenVdb(dir / "vectors.vdb", {vectors});
+  expectErrorMentioning([&] { openVdb((dir / "vectors.vdb").string()); }, "vec3s");
+  expectErrorMentioning([&] { openVdb((dir / "vectors.vdb").string()); }, "vectors.vdb");
+
+  writeWithOpenVdb(dir / "empty.vdb", {openvdb::FloatGrid::create(0.0f)});
+  expectErrorMentioning([&] { openVdb((dir / "empty.vdb").string()); }, "no active voxels");
+
+  writeWithOpenVdb(dir / "none.vdb", {});
+  expectErrorMentioning([&] { openVdb((dir / "none.vdb").string()); }, "no grids");
+}
+
+TEST(VdbFormat, DamagedFilesAreClearErrors) {
+  const auto dir = test::freshTempDir("vdb_damaged");
+  FunctionSource source(kDims, tiltedAffine(), headValue);
+  const fs::path good = dir / "good.vdb";
+  exportVdb(source, good.string());
+  std::string bytes;
+  {
+    std::ifstream in(good, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  ASSERT_GT(bytes.size(), 200u);
+
+  writeFile(dir / "text.vdb", "this is not a VDB file\n");
+  expectErrorMentioning([&] { openVdb((dir / "text.vdb").string()); }, "text.vdb");
+  writeFile(dir / "zero.vdb", "");
+  expectErrorMentioning([&] { openVdb((dir / "zero.vdb").string()); }, "zero.vdb");
+  // Cut in the header, in the grid descriptor and metadata, in the tree, and at the last bytes.
+  for (std::size_t keep : {std::size_t{8}, std::size_t{100}, bytes.size() / 2, bytes.size() - 8}) {
+    SCOPED_TRACE(keep);
+    const fs::path cut = dir / fmt::format("cut{}.vdb", keep);
+    writeFile(cut, bytes.substr(0, keep));
+    expectErrorMentioning([&] { openVdb(cut.string()); }, cut.string());
+  }
+  expectErrorMentioning([&] { openVdb((dir / "missing.vdb").string()); }, "missing.vdb");
+}
+
+}  // namespace
+}  // namespace octoray
