@@ -302,6 +302,36 @@ TEST_F(DicomWeb, KilledToolResumesAndNeverShowsTheSecret) {
   EXPECT_EQ(rerun.out.find(secret_), std::string::npos);
 }
 
+// octoray-import with a DICOMweb series URL as its input: the series is retrieved into the
+// cache folder ($OCTORAY_CACHE) and resolves to the same volume as the local files.
+TEST_F(DicomWeb, ImportTakesADicomWebSeriesUrl) {
+  const fs::path dir = test::freshTempDir("import-url");
+  const fs::path creds = credentialsFile(dir);
+  ::setenv("OCTORAY_CACHE", (dir / "cache").c_str(), 1);
+  const std::string url = server_->dicomWebUrl() + "/studies/" + studyUid_ + "/series/" + seriesUid_;
+  auto remote = test::runProcess({test::toolPath("octoray-import").string(), "--inspect", url, "--json",
+                                  "--credentials", creds.string()});
+  ASSERT_EQ(remote.exitCode, 0) << remote.err;
+  auto local = test::runProcess({test::toolPath("octoray-import").string(), "--inspect",
+                                 seriesFolder().string(), "--json"});
+  ASSERT_EQ(local.exitCode, 0) << local.err;
+  const auto a = nlohmann::json::parse(remote.out), b = nlohmann::json::parse(local.out);
+  for (const char* key : {"dimensions", "patientFromIndex", "valueRange", "spacing"}) {
+    if (b.contains(key)) EXPECT_EQ(a[key], b[key]) << key;
+  }
+  EXPECT_TRUE(a.contains("dimensions"));
+  EXPECT_TRUE(pacs::isCompleteRetrieval(dir / "cache" / "pacs" / studyUid_ / seriesUid_));
+  EXPECT_EQ(remote.out.find(secret_), std::string::npos);
+  EXPECT_EQ(remote.err.find(secret_), std::string::npos);
+  EXPECT_TRUE(filesContaining(dir / "cache", secret_).empty());
+
+  // A URL that names no series is one clear message.
+  auto study = test::runProcess({test::toolPath("octoray-import").string(), "--inspect",
+                                 server_->dicomWebUrl() + "/studies/" + studyUid_, "--credentials", creds.string()});
+  EXPECT_EQ(study.exitCode, 1);
+  EXPECT_NE(study.err.find("names no series"), std::string::npos) << study.err;
+}
+
 TEST_F(DicomWeb, WrongCredentialsAreOneClearMessageWithoutTheSecret) {
   const fs::path dir = test::freshTempDir("auth");
   const std::string wrong = randomSecret();

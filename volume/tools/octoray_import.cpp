@@ -4,6 +4,8 @@
 //   --export OUT.nii[.gz] PATH  the resolved volume as NIfTI (shear kept in the sform)
 //   --export OUT.vdb PATH       the resolved volume as a sparse OpenVDB grid (--vdb-threshold)
 //   PATH -o OUT.octoray       the brick octree store (volume/)
+// PATH may be a DICOMweb series URL (https://HOST/dicom-web/studies/S/series/R): the series is
+// retrieved into the user cache folder first (pacs/, resumable; --credentials, --ca-file).
 // --json output follows docs/import-json.md (schema version 1).
 
 #include <CLI/CLI.hpp>
@@ -27,9 +29,12 @@
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/core/error.h"
+#include "octoray/core/paths.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/nifti_export.h"
 #include "octoray/dicom/vdb.h"
+#include "octoray/pacs/connection.h"
+#include "octoray/pacs/dicomweb.h"
 #include "octoray/volume/store_builder.h"
 
 namespace {
@@ -45,6 +50,7 @@ struct Arguments {
   bool inspect = false;
   std::string exportPath;
   std::optional<double> vdbThresholdHu;  // set only with --vdb-threshold
+  std::string credentialsFile, caFile;    // a DICOMweb URL as PATH
   bool json = false;
   std::string series;
   double sliceSpacingMm = 0;
@@ -413,7 +419,25 @@ int exportVolume(const Arguments& a) {
   return 0;
 }
 
-int run(const Arguments& a) {
+// A DICOMweb series URL as PATH: the series is retrieved (resuming) into the user cache
+// folder first, and PATH becomes that folder. The JSON and messages keep the URL.
+void retrieveUrlInput(Arguments& a) {
+  if (!pacs::isHttpUrl(a.path)) return;
+  pacs::PacsOptions options;
+  std::string warning;
+  options.credentials = pacs::resolveCredentials(a.credentialsFile, &warning);
+  if (!warning.empty()) fmt::print(stderr, "octoray-import: warning: {}\n", warning);
+  options.caFile = a.caFile;
+  cli::ProgressBar bar("retrieving");
+  const std::filesystem::path folder = pacs::retrieveSeriesUrl(
+      a.path, options, userCacheDir(),
+      [&](int64_t done, int64_t total) { bar.update(static_cast<std::size_t>(done), static_cast<std::size_t>(total)); });
+  bar.finish();
+  a.path = folder.string();
+}
+
+int run(Arguments a) {
+  retrieveUrlInput(a);
   if (a.list) {
     cli::ProgressBar bar("scanning");
     dicom::ScanOptions options;
@@ -472,7 +496,7 @@ int main(int argc, char** argv) {
       ->needs(exportOpt);
   app.add_option("--memory-budget", a.memoryBudgetMiB, "Store: build memory budget in MiB")
       ->check(CLI::Range(64, 1 << 20));
-  app.add_option("path", a.path, "DICOM folder, DICOMDIR, DICOM file, or a .nrrd/.nhdr/.mhd/"
+  app.add_option("path", a.path, "DICOM folder, DICOMDIR, DICOM file, DICOMweb series URL, or a .nrrd/.nhdr/.mhd/"
                                  ".mha/.nii/.nii.gz/.tif/.vdb file or TIFF folder")
       ->required();
   app.add_flag("--json", a.json, "Machine-readable output (docs/import-json.md)");
@@ -486,12 +510,18 @@ int main(int argc, char** argv) {
   app.add_option("--raw-spacing", a.rawSpacing, "Raw volume: spacing in mm, x,y,z");
   app.add_option("--raw-header-bytes", a.rawHeaderBytes, "Raw volume: bytes before the data");
   app.add_option("--tiff-spacing", a.tiffSpacing, "TIFF stack: spacing in mm, x,y,z");
+  app.add_option("--credentials", a.credentialsFile,
+                 "PATH a DICOMweb URL: file holding \"basic USER:PASSWORD\" or \"bearer TOKEN\" "
+                 "(default: $OCTORAY_PACS_CREDENTIALS)");
+  app.add_option("--ca-file", a.caFile, "PATH an https DICOMweb URL: PEM of a private CA to trust");
   app.footer(
       "Examples:\n"
       "  octoray-import --list scans/                         # the series found under scans/\n"
       "  octoray-import --export head.nii.gz scans/ --series 2  # series 2 of the table, NIfTI\n"
       "  octoray-import --export head.vdb --vdb-threshold -500 scans/  # >= -500 HU, OpenVDB\n"
-      "  octoray-import scans/ -o head.octoray                # the store octoray-view reads\n");
+      "  octoray-import scans/ -o head.octoray                # the store octoray-view reads\n"
+      "  octoray-import https://pacs/dicom-web/studies/1.2.3/series/1.2.4 -o ct.octoray \\\n"
+      "      --credentials ~/.octoray-pacs                    # retrieved into the cache first\n");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
