@@ -157,38 +157,49 @@ TEST_F(DicomWeb, QidoFindsTheStudyByPatientIdAndModality) {
   EXPECT_EQ(pacs->findInstances(studyUid_, seriesUid_).size(), 140u);
 }
 
-// octoray-pacs get, then octoray-import of the retrieved folder and of the local files: the
-// two stores hold the same samples in every brick.
+// octoray-pacs get over WADO-RS and over C-GET, then octoray-import of each retrieved folder
+// and of the local files: the three stores hold the same samples in every brick.
 TEST_F(DicomWeb, RetrievedSeriesImportsToTheSameStoreAsTheLocalFiles) {
   const fs::path dir = test::freshTempDir("wado");
   const fs::path creds = credentialsFile(dir);
-  auto get = test::runProcess({test::toolPath("octoray-pacs").string(), "get", server_->dicomWebUrl(),
-                               "--credentials", creds.string(), "--study", studyUid_, "--series",
-                               seriesUid_, "-o", (dir / "exams").string(), "--json"});
-  ASSERT_EQ(get.exitCode, 0) << get.err;
-  const auto report = nlohmann::json::parse(get.out);
-  EXPECT_EQ(report["series"][0]["instances"], 140);
-  EXPECT_EQ(report["series"][0]["fetched"], 140);
-  const fs::path folder = dir / "exams" / studyUid_ / seriesUid_;
-  EXPECT_TRUE(pacs::isCompleteRetrieval(folder));
-
-  for (const auto& [source, store] : {std::pair{folder, dir / "pacs.octoray"},
-                                      std::pair{seriesFolder(), dir / "local.octoray"}}) {
+  const std::string dimse = fmt::format("dicom://{}@127.0.0.1:{}", server_->aeTitle(), server_->dicomPort());
+  std::vector<std::pair<fs::path, fs::path>> imports;  // source folder, store
+  for (const auto& [url, name] : {std::pair{server_->dicomWebUrl(), std::string("wado")},
+                                  std::pair{dimse, std::string("cget")}}) {
+    SCOPED_TRACE(name);
+    std::vector<std::string> argv = {test::toolPath("octoray-pacs").string(), "get", url, "--study", studyUid_,
+                                     "--series", seriesUid_, "-o", (dir / name).string(), "--json"};
+    if (name == "wado") argv.insert(argv.end(), {"--credentials", creds.string()});
+    auto get = test::runProcess(argv);
+    ASSERT_EQ(get.exitCode, 0) << get.err;
+    const auto report = nlohmann::json::parse(get.out);
+    EXPECT_EQ(report["series"][0]["instances"], 140);
+    EXPECT_EQ(report["series"][0]["fetched"], 140);
+    const fs::path folder = dir / name / studyUid_ / seriesUid_;
+    EXPECT_TRUE(pacs::isCompleteRetrieval(folder));
+    EXPECT_TRUE(filesContaining(dir / name, secret_).empty());
+    EXPECT_EQ(get.out.find(secret_), std::string::npos);
+    EXPECT_EQ(get.err.find(secret_), std::string::npos);
+    imports.emplace_back(folder, dir / (name + ".octoray"));
+  }
+  imports.emplace_back(seriesFolder(), dir / "local.octoray");
+  for (const auto& [source, store] : imports) {
     auto r = test::runProcess({test::toolPath("octoray-import").string(), source.string(), "-o", store.string()});
     ASSERT_EQ(r.exitCode, 0) << r.err;
   }
-  const volume::StoreReader a((dir / "pacs.octoray").string()), b((dir / "local.octoray").string());
-  ASSERT_EQ(a.nodes().size(), b.nodes().size());
-  for (int i = 0; i < 3; ++i) EXPECT_EQ(a.header().dims[i], b.header().dims[i]);
-  for (int i = 0; i < 12; ++i) EXPECT_EQ(a.header().patientFromIndex[i], b.header().patientFromIndex[i]);
-  for (std::size_t id = 0; id < a.nodes().size(); ++id) {
-    const volume::Brick ba = a.readBrick(static_cast<int64_t>(id)), bb = b.readBrick(static_cast<int64_t>(id));
-    ASSERT_EQ(ba.u16, bb.u16) << "brick " << id;
-    ASSERT_EQ(ba.f32, bb.f32) << "brick " << id;
+  const volume::StoreReader local((dir / "local.octoray").string());
+  for (std::size_t s = 0; s < 2; ++s) {
+    SCOPED_TRACE(imports[s].second.string());
+    const volume::StoreReader retrieved(imports[s].second.string());
+    ASSERT_EQ(retrieved.nodes().size(), local.nodes().size());
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(retrieved.header().dims[i], local.header().dims[i]);
+    for (int i = 0; i < 12; ++i) EXPECT_EQ(retrieved.header().patientFromIndex[i], local.header().patientFromIndex[i]);
+    for (std::size_t id = 0; id < local.nodes().size(); ++id) {
+      const volume::Brick a = retrieved.readBrick(static_cast<int64_t>(id)), b = local.readBrick(static_cast<int64_t>(id));
+      ASSERT_EQ(a.u16, b.u16) << "brick " << id;
+      ASSERT_EQ(a.f32, b.f32) << "brick " << id;
+    }
   }
-  EXPECT_TRUE(filesContaining(dir / "exams", secret_).empty());
-  EXPECT_EQ(get.out.find(secret_), std::string::npos);
-  EXPECT_EQ(get.err.find(secret_), std::string::npos);
 }
 
 // Interrupted after 70 instances, the retrieval resumes with only the other 70; an instance
