@@ -80,6 +80,20 @@ TEST(TransferFunction, TransparentOverAgreesWithDenseSampling) {
   }
 }
 
+TEST(TransferFunction, ValidateRefusesMoreThanTheMaximumOfPoints) {
+  TransferFunction tf = ramp();
+  tf.opacity.assign(kMaxControlPoints, {0.0, 0.5f});
+  EXPECT_NO_THROW(validate(tf, "big.json"));
+  tf.opacity.push_back({0.0, 0.5f});
+  try {
+    validate(tf, "big.json");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), "big.json");
+    EXPECT_NE(e.reason().find("more than the 1000000 allowed"), std::string::npos) << e.what();
+  }
+}
+
 TEST(TransferFunction, ValidateNamesTheField) {
   TransferFunction tf = ramp();
   EXPECT_NO_THROW(validate(tf, "x.json"));

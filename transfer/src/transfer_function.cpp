@@ -100,6 +100,11 @@ void validate(const TransferFunction& tf, const std::string& path) {
   };
   require(!tf.color.empty(), path, prefix + "color", "needs at least one control point");
   require(!tf.opacity.empty(), path, prefix + "opacity", "needs at least one control point");
+  for (const auto& [name, count] : {std::pair{"color", tf.color.size()}, std::pair{"opacity", tf.opacity.size()},
+                                    std::pair{"gradientOpacity", tf.gradientOpacity.size()}}) {
+    require(count <= kMaxControlPoints, path, prefix + name,
+            fmt::format("{} control points, more than the {} allowed", count, kMaxControlPoints));
+  }
   for (std::size_t i = 0; i < tf.color.size(); ++i) {
     const ColorPoint& p = tf.color[i];
     require(finite(p.value), path, field("color", i), "value is not a finite number");

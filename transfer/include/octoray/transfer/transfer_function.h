@@ -7,6 +7,7 @@
 // the later point applies. A NaN value evaluates to transparent black.
 
 #include <array>
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -53,6 +54,10 @@ struct TransferFunction {
   std::string description;                          // what the preset is for (free text)
   Interpolation interpolation = Interpolation::Linear;
 };
+
+// The most control points one list (colour, opacity, gradient opacity) may hold: far above any
+// real preset (Slicer's have under 20), and what every consumer handles in well under a second.
+inline constexpr std::size_t kMaxControlPoints = 1'000'000;
 
 // Checks every rule of docs/transfer-function-json.md: finite sorted values, alpha and colour
 // in [0, 1], at least one colour and one opacity point, a sane material and a positive unit
