@@ -453,6 +453,21 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
                       LeafFeedbackCounts* feedback, const TiledPass* tiles) {
   Impl& im = *impl_;
   validateRaycast(camera, tf, options);
+  {
+    // The shader steps in single precision: past 2^20 steps across the volume the step is
+    // lost against the ray parameter and rays come out empty. Refused, as the reference refuses
+    // steps past 1e9.
+    const Mat4 m = im.store.patientFromIndex();
+    const auto& dims = im.store.header().dims;
+    double diagonalMm = 0;  // an upper bound: the edges' lengths summed
+    for (int a = 0; a < 3; ++a) diagonalMm += length(m.column(a)) * static_cast<double>(dims[a]);
+    const double step = im.stepMm(options);
+    if (diagonalMm / step > double{1 << 20}) {
+      throw Error(im.store.path(), fmt::format("step {} mm is too small for the GPU raycaster: over 2^20 "
+                                               "steps across the volume (use --reference)",
+                                               step));
+    }
+  }
   Frame frame;
   FrameStats& stats = frame.stats;
   const BrickPool& pool = im.pool;

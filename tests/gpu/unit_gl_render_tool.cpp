@@ -132,6 +132,11 @@ TEST_F(GpuRenderTool, BadInputExitsOneNamingTheFile) {
   EXPECT_NE(noGradients.err.find("--gradients"), std::string::npos) << noGradients.err;
   EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--lod-pixels", "-1"}).exitCode, 1);
   EXPECT_EQ(runProcess({render, store, "-o", out, "--preset", "bone", "--boundary", "1,2"}).exitCode, 1);
+  // A step too small for single-precision stepping: refused naming the store, not a black picture.
+  const ProcessResult tinyStep = runProcess({render, store, "-o", out, "--preset", "bone", "--step", "1e-9"});
+  EXPECT_EQ(tinyStep.exitCode, 1);
+  EXPECT_NE(tinyStep.err.find("step 1e-09 mm is too small for the GPU raycaster"), std::string::npos) << tinyStep.err;
+  EXPECT_NE(tinyStep.err.find(store), std::string::npos) << tinyStep.err;
   EXPECT_FALSE(std::filesystem::exists(out)) << "no output after a failure";
 }
 

@@ -2,6 +2,7 @@
 // sample, every filtered inner sample, and min/max ranges that bound whole subtrees.
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
 
 #include "memory_volume.h"
@@ -113,6 +114,28 @@ INSTANTIATE_TEST_SUITE_P(Sizes, StoreRoundTrip,
                          ::testing::Values(Case{{1, 1, 1}, 16, 1}, Case{{33, 17, 5}, 16, 1},
                                            Case{{33, 17, 5}, 16, 2}, Case{{70, 40, 90}, 32, 1},
                                            Case{{65, 64, 33}, 32, 2}, Case{{130, 20, 70}, 64, 1}));
+
+// A float volume with a NaN or an infinity: refused, naming the source and the sample (it
+// used to import and validate, then fail to render with "opacity table range [-inf, inf]").
+TEST(StoreBuild, NonFiniteFloatSamplesAreRefusedNamingTheSample) {
+  const auto dir = test::freshTempDir("nonfinite");
+  for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()}) {
+    MemoryVolume volume({20, 18, 16}, [bad](int64_t i, int64_t j, int64_t k) {
+      return i == 3 && j == 5 && k == 7 ? bad : 0.25f * static_cast<float>(i + j + k);
+    }, "", false);
+    BuildOptions options;
+    options.brickSize = 16;
+    options.format = BuildOptions::Format::Float32;
+    const std::string path = (dir / "v.octoray").string();
+    try {
+      buildStore(volume, path, options);
+      FAIL() << "a non-finite sample was stored";
+    } catch (const Error& e) {
+      EXPECT_NE(e.reason().find("slice 7, column 3, row 5"), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(path));
+  }
+}
 
 TEST(StoreBuild, CodecsAreLossless) {
   MemoryVolume volume({50, 45, 40}, [](int64_t i, int64_t j, int64_t k) {

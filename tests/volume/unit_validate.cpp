@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -17,9 +18,11 @@
 #include <xxhash.h>
 
 #include "memory_volume.h"
+#include "octoray/core/error.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "octoray/volume/store_validator.h"
+#include "run_process.h"
 #include "test_paths.h"
 
 namespace octoray::volume {
@@ -258,11 +261,47 @@ TEST_F(DamagedStore, NarrowedRangeFailsRanges) {
   table[id].minValue = table[id].maxValue;
   writeTable(bytes_, table);
   resealChecksums(bytes_);
-  const ValidationReport report = validateStore(copyWith(path_, "range.octoray", bytes_));
+  const std::string damaged = copyWith(path_, "range.octoray", bytes_);
+  const ValidationReport report = validateStore(damaged);
   expectOnlyFailing(report, {"ranges"});
   const CheckResult& ranges = *report.find("ranges");
   ASSERT_EQ(ranges.failures.size(), 1u);
   EXPECT_EQ(ranges.failures[0].nodeId, id);
+  // Everything that renders reads bricks through readBrick, which refuses the lying node.
+  const StoreReader reader(damaged);
+  try {
+    reader.readBrick(id);
+    FAIL() << "a brick outside its node's range was accepted";
+  } catch (const octoray::Error& e) {
+    EXPECT_EQ(e.path(), damaged);
+    EXPECT_NE(e.reason().find(fmt::format("node {} ", id)), std::string::npos) << e.what();
+    EXPECT_NE(e.reason().find("outside the node's recorded range"), std::string::npos) << e.what();
+  }
+  EXPECT_NO_THROW(reader.readBrickUnchecked(id));
+}
+
+// Every node's range rewritten to air with the checksums resealed (a store whose table lies
+// throughout): rendering it was a black picture with exit 0; now both renderers stop with an
+// error naming the store and a node.
+TEST_F(DamagedStore, LyingRangesFailTheRenderNamingANode) {
+  std::vector<NodeRecord> table = readTable(bytes_);
+  for (NodeRecord& n : table) n.minValue = n.maxValue = -1000.0f;
+  writeTable(bytes_, table);
+  resealChecksums(bytes_);
+  const std::string damaged = copyWith(path_, "lying.octoray", bytes_);
+  EXPECT_THROW(StoreReader(damaged).readBrick(0), octoray::Error);
+  const fs::path render = test::toolPath("octoray-render");
+  if (!fs::exists(render)) GTEST_SKIP() << "octoray-render not built";
+  for (const char* renderer : {"--reference", "--gpu"}) {
+    SCOPED_TRACE(renderer);
+    const std::string out = (fs::path(damaged).parent_path() / "lying.png").string();
+    const test::ProcessResult r = test::runProcess({render.string(), damaged, "-o", out, "--preset", "bone",
+                                                    "--size", "32x32", renderer});
+    EXPECT_EQ(r.exitCode, 1) << r.err;
+    EXPECT_NE(r.err.find(damaged), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("outside the node's recorded range"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(out));
+  }
 }
 
 TEST_F(DamagedStore, ConstantNodeWithWideRangeFailsConstants) {

@@ -97,6 +97,19 @@ class Builder {
       const int64_t count = std::min(slabSlices_, info.dims[2] - z);
       try {
         for (int64_t s = 0; s < count; ++s) {
+          if constexpr (std::is_same_v<T, float>) {
+            // Float stores keep samples as they are: a NaN or an infinity would poison every
+            // range, filter and table downstream, so it is refused here, named.
+            const float* in = current.data() + s * sliceSamples;
+            for (int64_t i = 0; i < sliceSamples; ++i) {
+              if (!std::isfinite(in[i])) {
+                throw Error(info.sourcePath,
+                            fmt::format("slice {}, column {}, row {}: the sample is {}; a store "
+                                        "holds finite values only",
+                                        z + s, i % info.dims[0], i / info.dims[0], in[i]));
+              }
+            }
+          }
           std::vector<T> slice(static_cast<std::size_t>(sliceSamples));  // one pass of zeroing
           convert(std::span<const float>(current.data() + s * sliceSamples,
                                          static_cast<std::size_t>(sliceSamples)), slice);

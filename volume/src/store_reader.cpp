@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include <fmt/format.h>
 
@@ -144,6 +145,12 @@ Mat4 StoreReader::patientFromIndex() const {
 }
 
 Brick StoreReader::readBrick(int64_t id) const {
+  Brick brick = readBrickUnchecked(id);
+  checkRange(brick, node(id), id);
+  return brick;
+}
+
+Brick StoreReader::readBrickUnchecked(int64_t id) const {
   const NodeRecord& n = node(id);
   Brick brick;
   brick.nodeId = id;
@@ -192,6 +199,38 @@ Brick StoreReader::readBrick(int64_t id) const {
   }
   if (!ok) throw Error(path_, fmt::format("node {}: payload does not decompress", id));
   return brick;
+}
+
+// The samples of every brick lie in its node's recorded [min, max] (the builder records the
+// range over the brick, border included, and its descendants). A node table whose ranges lie
+// (with checksums recomputed to match) would make the renderer skip visible bricks as empty:
+// it is an error naming the store and the node instead of a wrong picture. One pass over
+// samples already in cache, next to a decompression that touches every byte.
+void StoreReader::checkRange(const Brick& brick, const NodeRecord& n, int64_t id) const {
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  bool finite = true;
+  if (brick.format == SampleFormat::UInt16) {
+    uint16_t a = 65535, b = 0;
+    for (const uint16_t v : brick.u16) {
+      a = std::min(a, v);
+      b = std::max(b, v);
+    }
+    if (!brick.u16.empty()) lo = physical(a), hi = physical(b);
+  } else {
+    for (const float v : brick.f32) {
+      finite = finite && std::isfinite(v);
+      lo = std::min(lo, static_cast<double>(v));
+      hi = std::max(hi, static_cast<double>(v));
+    }
+  }
+  // Ranges are stored as float: allow their rounding.
+  const auto slack = [](double v) { return 1e-6 * std::max(1.0, std::abs(v)); };
+  if (!finite || lo < n.minValue - slack(n.minValue) || hi > n.maxValue + slack(n.maxValue)) {
+    throw Error(path_, fmt::format("node {} (level {}): samples span [{}, {}], outside the node's "
+                                   "recorded range [{}, {}] (node table inconsistent: the store is "
+                                   "damaged)",
+                                   id, layout_.nodeKey(id).level, lo, hi, n.minValue, n.maxValue));
+  }
 }
 
 }  // namespace octoray::volume

@@ -113,7 +113,7 @@ class BrickCache {
     }
     std::shared_ptr<const Brick> brick;
     try {
-      brick = std::make_shared<const Brick>(store_.readBrick(id));
+      brick = std::make_shared<const Brick>(store_.readBrickUnchecked(id));
     } catch (const std::exception& e) {
       bad_[static_cast<std::size_t>(id)] = true;
       if (error) *error = e.what();

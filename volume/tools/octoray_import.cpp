@@ -68,8 +68,14 @@ struct Arguments {
 };
 
 // SIGINT/SIGTERM stop a build between slabs; the temporary file is removed, OUT untouched.
+// The exit status is 128 + the signal's number, the shell's convention (130 for SIGINT, 143 for
+// SIGTERM).
 std::atomic<bool> gStop{false};
-extern "C" void onStopSignal(int) { gStop.store(true); }
+std::atomic<int> gStopSignal{0};
+extern "C" void onStopSignal(int sig) {
+  gStopSignal.store(sig);
+  gStop.store(true);
+}
 
 double peakRssMiB() {
   rusage usage{};
@@ -329,7 +335,7 @@ int buildStoreFile(const Arguments& a) {
   } catch (const volume::BuildCancelled&) {
     bar.finish();
     fmt::print(stderr, "octoray-import: interrupted; {} was not written\n", a.storePath);
-    return 130;
+    return 128 + (gStopSignal.load() != 0 ? gStopSignal.load() : SIGINT);
   }
   bar.finish();
   const double mvoxPerS = report.seconds > 0 ? report.voxels / report.seconds / 1e6 : 0;

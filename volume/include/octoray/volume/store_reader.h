@@ -52,10 +52,16 @@ class StoreReader {
   }
 
   // Reads, verifies and decompresses node `id` (constant nodes are expanded). Throws
-  // octoray::Error naming the file and node on a checksum or decompression failure.
+  // octoray::Error naming the file and node on a checksum or decompression failure, or when
+  // the samples leave the node's recorded [min, max] (a lying node table).
   Brick readBrick(int64_t id) const;
+  // The same without the range check: for the validator, whose own checks say which part of
+  // the store is inconsistent.
+  Brick readBrickUnchecked(int64_t id) const;
 
  private:
+  void checkRange(const Brick& brick, const NodeRecord& n, int64_t id) const;
+
   std::string path_;
   int fd_ = -1;
   StoreHeader header_{};
