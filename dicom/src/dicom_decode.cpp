@@ -4,10 +4,12 @@
 #include <gdcmImageReader.h>
 #include <gdcmPhotometricInterpretation.h>
 #include <gdcmPixelFormat.h>
+#include <gdcmSequenceOfFragments.h>
 #include <gdcmTransferSyntax.h>
 
 #include <cstring>
 #include <filesystem>
+#include <limits>
 
 #include <fmt/format.h>
 
@@ -81,7 +83,11 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   PixelFormat& f = out.format;
   f.columns = static_cast<int>(dims[0]);
   f.rows = static_cast<int>(dims[1]);
-  f.frames = image.GetNumberOfDimensions() == 3 ? static_cast<int>(dims[2]) : 1;
+  const unsigned int frames = image.GetNumberOfDimensions() == 3 ? dims[2] : 1;
+  if (frames > static_cast<unsigned int>(std::numeric_limits<int>::max())) {
+    throw Error(path, fmt::format("invalid NumberOfFrames {}", frames));
+  }
+  f.frames = static_cast<int>(frames);
   f.samplesPerPixel = pf.GetSamplesPerPixel();
   f.bitsAllocated = pf.GetBitsAllocated();
   f.bitsStored = pf.GetBitsStored();
@@ -142,14 +148,38 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
     }
   }
 
-  const std::size_t samples = out.frameSamples() * static_cast<std::size_t>(f.frames);
-  // 1-bit samples are packed continuously across frames, least significant bit first.
-  const std::size_t expected = (samples * static_cast<std::size_t>(f.bitsAllocated) + 7) / 8;
+  // Sized by untrusted header values: checked against the pixel data's length, without
+  // overflow, before anything is allocated. 1-bit samples are packed continuously across
+  // frames, least significant bit first.
+  std::size_t samples = 0, bits = 0;
+  const bool overflow =
+      __builtin_mul_overflow(out.frameSamples(), static_cast<std::size_t>(f.frames), &samples) ||
+      __builtin_mul_overflow(samples, static_cast<std::size_t>(f.bitsAllocated), &bits) ||
+      bits > std::numeric_limits<std::size_t>::max() - 7;
+  const std::size_t expected = overflow ? std::numeric_limits<std::size_t>::max() : (bits + 7) / 8;
   const unsigned long length = image.GetBufferLength();
-  if (length < expected) {
+  if (overflow || length < expected) {
     throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
                                   "at {} bits need {}", length, f.rows, f.columns, f.frames,
                                   f.bitsAllocated, expected));
+  }
+  // GDCM sizes its buffer from Rows x Columns x NumberOfFrames; the pixel data itself must
+  // back that: native data byte for byte, encapsulated data with a fragment per frame at least
+  // (PS3.5 A.4; not video syntaxes, 1.2.840.10008.1.2.4.100-108, whose one stream spans them).
+  const gdcm::DataElement& pixelData = image.GetDataElement();
+  const bool video = f.transferSyntaxUid.starts_with("1.2.840.10008.1.2.4.10");
+  if (const gdcm::ByteValue* native = pixelData.GetByteValue();
+      native && native->GetLength() < expected) {
+    throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
+                                  "at {} bits need {}",
+                                  native->GetLength(), f.rows, f.columns, f.frames, f.bitsAllocated,
+                                  expected));
+  }
+  if (const gdcm::SequenceOfFragments* fragments = pixelData.GetSequenceOfFragments();
+      fragments && !video &&
+      fragments->GetNumberOfFragments() < static_cast<std::size_t>(f.frames)) {
+    throw Error(path, fmt::format("NumberOfFrames {} but the pixel data has only {} fragment(s)",
+                                  f.frames, fragments->GetNumberOfFragments()));
   }
   std::vector<char> buffer(length);
   if (!image.GetBuffer(buffer.data())) {

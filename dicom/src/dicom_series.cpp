@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <set>
@@ -135,7 +136,8 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
 }
 
 // The pixel data value must lie inside the file, and native (uncompressed) data must hold
-// every frame; encapsulated fragments are checked when they are decoded.
+// every frame. Encapsulated fragments are checked when they are decoded; here each frame needs
+// at least its 8-byte item header. Deflated data sets cannot be checked before inflating.
 void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCount,
                       std::size_t pixelValueOffset) {
   std::error_code ec;
@@ -143,16 +145,25 @@ void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCoun
   if (ec) throw Error(h.path, "cannot read file size: " + ec.message());
   if (pixelValueOffset > fileBytes) throw Error(h.path, "file truncated before its pixel data");
   const gdcm::TransferSyntax& ts = file.GetHeader().GetDataSetTransferSyntax();
-  if (ts.IsEncapsulated() || ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return;
-  const uint64_t bits = static_cast<uint64_t>(h.rows) * static_cast<uint64_t>(h.columns) *
-                        static_cast<uint64_t>(frameCount) *
-                        static_cast<uint64_t>(std::max(h.samplesPerPixel, 1)) *
-                        static_cast<uint64_t>(h.bitsAllocated);
-  const uint64_t needed = (bits + 7) / 8;
-  if (fileBytes - pixelValueOffset < needed) {
+  if (ts == gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian) return;
+  const uint64_t available = fileBytes - pixelValueOffset;
+  if (ts.IsEncapsulated()) {
+    if (available / 8 < static_cast<uint64_t>(frameCount)) {
+      throw Error(h.path, fmt::format("NumberOfFrames {} cannot fit in {} bytes of encapsulated "
+                                      "pixel data (at least one fragment per frame)",
+                                      frameCount, available));
+    }
+    return;
+  }
+  // At most 65535 x 65535 x 2^31 x 65535 x 65535 bits: long double keeps the comparison exact
+  // enough where 64 bits would overflow.
+  const long double bits = static_cast<long double>(h.rows) * h.columns * frameCount *
+                           std::max(h.samplesPerPixel, 1) * h.bitsAllocated;
+  const long double needed = std::ceil(bits / 8);
+  if (static_cast<long double>(available) < needed) {
     throw Error(h.path, fmt::format("pixel data is {} bytes, {} rows x {} columns x {} frames "
-                                    "need {} (file truncated)", fileBytes - pixelValueOffset,
-                                    h.rows, h.columns, frameCount, needed));
+                                    "need {:.0f} (file truncated)",
+                                    available, h.rows, h.columns, frameCount, needed));
   }
 }
 
@@ -219,8 +230,14 @@ FileHeader readHeader(const std::string& path) {
   h.seriesNumber = static_cast<int>(numberValue(ds, kSeriesNumber).value_or(0));
   if (h.seriesUid.empty()) h.seriesUid = "(no SeriesInstanceUID)";
 
-  const int frameCount = static_cast<int>(numberValue(ds, kFrames).value_or(1));
-  if (frameCount < 1) throw Error(path, fmt::format("invalid NumberOfFrames {}", frameCount));
+  const double framesValue = numberValue(ds, kFrames).value_or(1);
+  if (!(framesValue >= 1 && framesValue <= std::numeric_limits<int>::max()) ||
+      framesValue != std::floor(framesValue)) {
+    throw Error(path, fmt::format("invalid NumberOfFrames {}", framesValue));
+  }
+  const int frameCount = static_cast<int>(framesValue);
+  // Before anything is sized by the untrusted count: the pixel data must be able to hold it.
+  checkPixelLength(file, h, frameCount, pixelValueOffset);
   if (ds.FindDataElement(kPerFrameGroups) || ds.FindDataElement(kSharedGroups)) {
     h.multiFrame = true;
     readEnhancedFrames(ds, h, frameCount);
@@ -251,7 +268,6 @@ FileHeader readHeader(const std::string& path) {
                              ? file.GetHeader().GetDataSetTransferSyntax().GetString()
                              : "";
   for (auto& frame : h.frames) frame.transferSyntaxUid = ts;
-  checkPixelLength(file, h, frameCount, pixelValueOffset);
   if (h.orientation && h.orientation->size() != 6) h.orientation.reset();
   if (h.pixelSpacing && h.pixelSpacing->size() != 2) h.pixelSpacing.reset();
   return h;

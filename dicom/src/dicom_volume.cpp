@@ -17,6 +17,11 @@ namespace octoray::dicom {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+// A resampled stack has at most this many slices per image of the series (or the second
+// number, for short series): finer spacings only interpolate, and a mistyped one such as
+// 1e-6 mm would otherwise make a volume too large to ever finish.
+constexpr int64_t kMaxResampledSlicesPerImage = 16;
+constexpr int64_t kMaxResampledSlicesAlways = 4096;
 
 std::string firstPath(const DicomSeries& series) {
   return series.frames.empty() ? series.seriesUid : series.frames.front().path;
@@ -97,6 +102,10 @@ StackGeometry resolveStack(const DicomSeries& series, const StackOptions& option
                                      g.duplicates.size(), names));
   }
 
+  if (!std::isfinite(options.sliceSpacingMm)) {
+    throw Error(where, fmt::format("slice spacing (--slice-spacing) {} mm is not a finite number",
+                                   options.sliceSpacingMm));
+  }
   const std::size_t n = g.slices.size();
   const Vec3 origin = g.slices.front().positionMm;
   for (const FrameRef& f : g.slices) g.distancesMm.push_back(dot(f.positionMm - origin, normal));
@@ -157,7 +166,21 @@ StackGeometry resolveStack(const DicomSeries& series, const StackOptions& option
       g.outputSlices = static_cast<int64_t>(n);
     } else {
       g.outputSpacingMm = options.sliceSpacingMm > 0 ? options.sliceSpacingMm : g.minGapMm;
-      g.outputSlices = static_cast<int64_t>(std::floor(span / g.outputSpacingMm + 1e-6)) + 1;
+      const double slices = std::floor(span / g.outputSpacingMm + 1e-6) + 1;
+      const auto maxSlices = std::max<int64_t>(
+          kMaxResampledSlicesPerImage * static_cast<int64_t>(n), kMaxResampledSlicesAlways);
+      if (!(slices <= static_cast<double>(maxSlices))) {
+        throw Error(
+            where,
+            fmt::format(
+                "a slice spacing of {} mm ({}) would resample {} images over {:.3f} mm into {:.0f} "
+                "slices, over the limit of {} (the larger of {} per image and {}): choose a larger "
+                "--slice-spacing",
+                g.outputSpacingMm,
+                options.sliceSpacingMm > 0 ? "--slice-spacing" : "the smallest gap, by default", n,
+                span, slices, maxSlices, kMaxResampledSlicesPerImage, kMaxResampledSlicesAlways));
+      }
+      g.outputSlices = static_cast<int64_t>(slices);
       g.warnings.push_back(fmt::format(
           "slice spacing varies from {:.3f} to {:.3f} mm (median {:.3f}); resampled to {} slices "
           "{:.4f} mm apart by linear interpolation along the stack", g.minGapMm, g.maxGapMm,

@@ -6,7 +6,14 @@
 #include <vtkNIFTIImageReader.h>
 #include <vtkNew.h>
 
+#include <zlib.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
 #include <cmath>
+#include <cstddef>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 
@@ -43,6 +50,94 @@ SampleType sampleTypeFromNifti(int datatype, const std::string& path) {
       throw Error(path, fmt::format("unsupported NIfTI datatype {} (supported: 8/16/32-bit "
                                     "integers, float32, float64)",
                                     datatype));
+  }
+}
+
+// The leading fields of the two on-disk headers (nifti1.h, nifti2.h); the 348-byte NIfTI-1
+// header is also the Analyze 7.5 layout. Only what must be checked before VTK sees the file.
+struct Nifti1Prefix {
+  int32_t sizeofHdr;  // 4: 348
+  char unused1[36];   // 36: data_type .. hkey_un0
+  int16_t dim[8];     // 16: dim[0] = number of axes, dim[1..7] sizes
+  char unused2[14];   // 14: intent_p1..p3, intent_code
+  int16_t datatype;   // 2: DT_* code
+  int16_t bitpix;     // 2: bits per voxel
+};
+static_assert(sizeof(Nifti1Prefix) == 76);  // 74 bytes of fields, padded to 4
+static_assert(offsetof(Nifti1Prefix, dim) == 40);
+static_assert(offsetof(Nifti1Prefix, datatype) == 70);
+static_assert(offsetof(Nifti1Prefix, bitpix) == 72);
+
+struct Nifti2Prefix {
+  int32_t sizeofHdr;  // 4: 540
+  char magic[8];      // 8: "n+2\0\r\n\032\n" or "ni2..."
+  int16_t datatype;   // 2: DT_* code
+  int16_t bitpix;     // 2: bits per voxel
+  int64_t dim[8];     // 64: dim[0] = number of axes, dim[1..7] sizes
+};
+static_assert(sizeof(Nifti2Prefix) == 80);
+static_assert(offsetof(Nifti2Prefix, datatype) == 12);
+static_assert(offsetof(Nifti2Prefix, bitpix) == 14);
+static_assert(offsetof(Nifti2Prefix, dim) == 16);
+
+template <typename T>
+T byteSwapped(T v) {
+  auto bytes = std::bit_cast<std::array<unsigned char, sizeof(T)>>(v);
+  std::reverse(bytes.begin(), bytes.end());
+  return std::bit_cast<T>(bytes);
+}
+
+// Checks the header fields VTK trusts (its reader crashes on an unknown datatype) before VTK
+// reads the file: header size, dims, datatype and bitpix. Reads through zlib, which passes
+// uncompressed files through as they are.
+void checkNiftiHeader(const std::string& path) {
+  std::array<char, 80> bytes{};
+  int got = -1;
+  if (gzFile in = gzopen(path.c_str(), "rb")) {
+    got = gzread(in, bytes.data(), static_cast<unsigned>(bytes.size()));
+    gzclose(in);
+  }
+  if (got < static_cast<int>(sizeof(Nifti1Prefix))) {
+    throw Error(path, "not a NIfTI or Analyze file (shorter than a header)");
+  }
+  int32_t sizeofHdr = 0;
+  std::memcpy(&sizeofHdr, bytes.data(), sizeof sizeofHdr);
+  const bool swapped = sizeofHdr != 348 && sizeofHdr != 540;
+  if (swapped) sizeofHdr = byteSwapped(sizeofHdr);
+  int64_t ndim = 0, datatype = 0, bitpix = 0;
+  std::array<int64_t, 8> dim{};
+  const auto value = [&](auto field) { return swapped ? byteSwapped(field) : field; };
+  if (sizeofHdr == 348) {
+    Nifti1Prefix h;
+    std::memcpy(&h, bytes.data(), sizeof h);
+    for (std::size_t i = 0; i < 8; ++i) dim[i] = value(h.dim[i]);
+    datatype = value(h.datatype);
+    bitpix = value(h.bitpix);
+  } else if (sizeofHdr == 540 && got >= static_cast<int>(sizeof(Nifti2Prefix))) {
+    Nifti2Prefix h;
+    std::memcpy(&h, bytes.data(), sizeof h);
+    for (std::size_t i = 0; i < 8; ++i) dim[i] = value(h.dim[i]);
+    datatype = value(h.datatype);
+    bitpix = value(h.bitpix);
+  } else {
+    throw Error(path, "not a NIfTI or Analyze file (sizeof_hdr is neither 348 nor 540)");
+  }
+  ndim = dim[0];
+  if (ndim < 1 || ndim > 7) {
+    throw Error(path, fmt::format("invalid dim[0] = {} (number of axes, 1 to 7)", ndim));
+  }
+  // Axes past the third only count volumes, which are skipped: their sizes are not checked.
+  for (int64_t i = 1; i <= std::min<int64_t>(ndim, 3); ++i) {
+    if (dim[static_cast<std::size_t>(i)] < 1) {
+      throw Error(path, fmt::format("invalid dim[{}] = {}: every size must be positive", i,
+                                    dim[static_cast<std::size_t>(i)]));
+    }
+  }
+  const SampleType type = sampleTypeFromNifti(static_cast<int>(datatype), path);
+  const auto expectedBits = static_cast<int64_t>(8 * sampleBytes(type));
+  if (bitpix != expectedBits) {
+    throw Error(path, fmt::format("bitpix {} does not match datatype {} ({} bits per voxel)",
+                                  bitpix, datatype, expectedBits));
   }
 }
 
@@ -120,16 +215,19 @@ bool startsWithGzipMagic(const std::string& path) {
 std::unique_ptr<VolumeSource> openNifti(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) throw Error(path, "not a readable file");
+  checkNiftiHeader(path);
   vtkNew<vtkNIFTIImageReader> reader;
-  detail::VtkMessages messages(reader);
+  detail::VtkMessages messages(reader.GetPointer());
   // CanReadFile checks the header without the pipeline, whose failures are noisy.
   if (!reader->CanReadFile(path.c_str())) throw Error(path, "not a NIfTI or Analyze file");
   reader->SetFileName(path.c_str());
   reader->UpdateInformation();
-  if (!messages.errors().empty()) {
-    throw Error(path, "not a readable NIfTI header: " + messages.errors().front());
-  }
   vtkNIFTIImageHeader* header = reader->GetNIFTIHeader();
+  if (!messages.errors().empty() || !header) {
+    throw Error(path, messages.errors().empty()
+                          ? std::string("not a readable NIfTI header")
+                          : "not a readable NIfTI header: " + messages.errors().front());
+  }
 
   VolumeInfo info;
   info.format = "nifti";

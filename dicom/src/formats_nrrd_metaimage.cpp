@@ -1,19 +1,24 @@
-// NRRD (.nrrd, .nhdr) and MetaImage (.mhd, .mha): headers are read by VTK's vtkNrrdReader and
-// by MetaIO (bundled with VTK as vtkmetaio); the samples are then streamed slab by slab by the
-// shared raw slab reader, never through the libraries' whole-volume readers.
+// NRRD (.nrrd, .nhdr) and MetaImage (.mhd, .mha). NRRD headers are parsed here (teem's NRRD
+// format, NRRD0001-0005); MetaImage headers by MetaIO (bundled with VTK as vtkmetaio). The
+// samples are then streamed slab by slab by the shared raw slab reader, never through the
+// libraries' whole-volume readers.
+//
+// Limits on untrusted headers: a NRRD header (and so any one of its lines) may be at most
+// kMaxNrrdHeaderBytes (1 MiB); a data file named by a NRRD or MetaImage header must lie in the
+// header's folder or below it.
 
-#include <vtkNrrdReader.h>
-#include <vtkObjectFactory.h>
-#include <vtkStringArray.h>
-#include <vtkType.h>
 #include <vtkmetaio/metaImage.h>
 
 #include <algorithm>
 #include <bit>
 #include <cctype>
+#include <charconv>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
+#include <map>
+#include <mutex>
 #include <optional>
 #include <sstream>
 
@@ -57,83 +62,214 @@ Mat4 affineFromAxes(const std::array<Vec3, 3>& directions, const std::array<doub
                            spacingMm[2] * directions[2], originMm);
 }
 
+// Whether `file` lies strictly below `folder` (both absolute and lexically normal; `folder`
+// may end in a separator, which is an empty last component).
+bool isBelow(const std::filesystem::path& file, const std::filesystem::path& folder) {
+  auto f = file.begin();
+  for (const auto& part : folder) {
+    if (part.empty()) continue;
+    if (f == file.end() || *f != part) return false;
+    ++f;
+  }
+  return f != file.end() && !f->empty();
+}
+
+// The data file a header names (`field` = its value), resolved against the header's folder.
+// Only files in that folder or below are read, so a header cannot make us read
+// "../../etc/passwd" or "/home/someone/else". The check is on the path as written (after
+// removing "." and ".."): a symbolic link inside the folder is the folder owner's choice.
+std::string dataFileBesideHeader(const std::string& headerPath, const std::string& name,
+                                 const char* field) {
+  namespace fs = std::filesystem;
+  const fs::path headerFolder = fs::path(headerPath).parent_path();
+  const fs::path named(name);
+  std::error_code ec;
+  const fs::path folder =
+      fs::absolute(headerFolder.empty() ? fs::path(".") : headerFolder, ec).lexically_normal();
+  const fs::path file =
+      named.is_absolute() ? named.lexically_normal() : (folder / named).lexically_normal();
+  if (ec || name.empty() || !isBelow(file, folder)) {
+    throw Error(headerPath, fmt::format("{} '{}' is outside the header's folder: only data files "
+                                        "in that folder or below it are read",
+                                        field, name));
+  }
+  return named.is_absolute() ? file.string() : (headerFolder / named).lexically_normal().string();
+}
+
 // ---------------------------------------------------------------------------------------------
 // NRRD
+//
+// The header is parsed here rather than by VTK 9.1's vtkNrrdReader, which loops forever on a
+// header whose last line has no newline (std::getline at the end leaves the previous line in
+// place), reads sizes with 32-bit atoi (so "-5" or "1e10" pass as something else), drops
+// "spacings" given before "dimension", expands "data file" patterns without bound and resolves
+// data files anywhere on disk.
 
-// vtkNrrdReader keeps the encoding, the data file list and the header length protected; this
-// subclass exposes them and lets us run the header parse alone (no pipeline, no data read).
-class NrrdHeaderReader : public vtkNrrdReader {
- public:
-  static NrrdHeaderReader* New();
-  vtkTypeMacro(NrrdHeaderReader, vtkNrrdReader)
+// Real headers are a few hundred bytes; this bounds the header and so every line in it.
+constexpr std::size_t kMaxNrrdHeaderBytes = std::size_t{1} << 20;
+// NRRD_DIM_MAX in teem.
+constexpr int kMaxNrrdDimension = 16;
 
-      bool parseHeader() {
-    return ReadHeader() != 0;
+// The fields of one header (names in their canonical spelling) and where its data start.
+struct NrrdHeader {
+  std::map<std::string, std::string> fields;  // field -> description, trimmed
+  bool endsWithBlankLine = false;             // a blank line ends the header (attached data)
+  uint64_t headerBytes = 0;                   // bytes up to and including that blank line
+
+  std::optional<std::string> field(const std::string& name) const {
+    const auto it = fields.find(name);
+    if (it == fields.end()) return std::nullopt;
+    return it->second;
   }
-  bool rawEncoding() const { return Encoding == ENCODING_RAW; }
-  bool gzipEncoding() const { return Encoding == ENCODING_GZIP; }
-  vtkStringArray* dataFiles() const { return DataFiles; }
-  unsigned long attachedHeaderBytes() const { return HeaderSize; }
-
- protected:
-  NrrdHeaderReader() = default;
-  ~NrrdHeaderReader() override = default;
 };
-vtkStandardNewMacro(NrrdHeaderReader);
 
-// vtkNrrdReader (VTK 9.1) parses "space directions" only for their lengths and "space" only
-// for a LAS flip of its own output: it keeps neither the direction vectors nor the space. No
-// other library in the dependency set reads NRRD, so these two fields (and "spacings", needed
-// only to undo the reader's vector guess below) are looked up here by key. The rest of the
-// header is vtkNrrdReader's. The header ends at the first blank line (or the end of a .nhdr).
-std::optional<std::string> nrrdField(const std::string& path, const std::string& key) {
+// Alternative spellings teem accepts, mapped to the canonical field name.
+std::string canonicalNrrdField(const std::string& name) {
+  static const std::map<std::string, std::string> kAliases = {
+      {"datafile", "data file"},       {"lineskip", "line skip"}, {"byteskip", "byte skip"},
+      {"centerings", "centers"},       {"axismins", "axis mins"}, {"axismaxs", "axis maxs"},
+      {"oldmin", "old min"},           {"oldmax", "old max"},     {"blocksize", "block size"},
+      {"sampleunits", "sample units"},
+  };
+  const auto alias = kAliases.find(name);
+  return alias == kAliases.end() ? name : alias->second;
+}
+
+bool knownNrrdField(const std::string& field) {
+  static const char* kFields[] = {"type",         "dimension",       "sizes",
+                                  "encoding",     "endian",          "data file",
+                                  "line skip",    "byte skip",       "spacings",
+                                  "space",        "space dimension", "space directions",
+                                  "space origin", "space units",     "measurement frame",
+                                  "kinds",        "content",         "thicknesses",
+                                  "axis mins",    "axis maxs",       "centers",
+                                  "labels",       "units",           "min",
+                                  "max",          "old min",         "old max",
+                                  "block size",   "number",          "sample units"};
+  return std::any_of(std::begin(kFields), std::end(kFields),
+                     [&](const char* known) { return field == known; });
+}
+
+// Reads the header: the magic line, then fields, key/value pairs and comments up to a blank
+// line or the end of the file (a detached header). Every step consumes a line, and no more
+// than kMaxNrrdHeaderBytes are read.
+NrrdHeader readNrrdHeader(const std::string& path) {
   std::ifstream file(path, std::ios::binary);
-  std::string line;
-  std::getline(file, line);  // the "NRRD000X" magic
-  for (int lines = 0; lines < 10000 && std::getline(file, line); ++lines) {
+  if (!file) throw Error(path, "cannot open the file for reading");
+  std::string text(kMaxNrrdHeaderBytes + 1, '\0');
+  file.read(text.data(), static_cast<std::streamsize>(text.size()));
+  text.resize(static_cast<std::size_t>(file.gcount()));
+  const bool truncatedByLimit = text.size() > kMaxNrrdHeaderBytes;
+
+  const auto tooLong = [&] {
+    return Error(path, fmt::format("the header does not end within {} bytes (NRRD headers, and "
+                                   "every line in them, are limited to 1 MiB)",
+                                   kMaxNrrdHeaderBytes));
+  };
+
+  NrrdHeader header;
+  std::size_t at = 0;
+  for (int lineNumber = 1; at < text.size(); ++lineNumber) {
+    const std::size_t newline = text.find('\n', at);
+    if (newline == std::string::npos && truncatedByLimit) throw tooLong();
+    const std::size_t end = newline == std::string::npos ? text.size() : newline;
+    std::string line = text.substr(at, end - at);
+    at = end + 1;  // past the newline (or past the end)
     if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (line.empty()) break;
-    if (line[0] == '#') continue;
-    const auto colon = line.find(": ");
-    if (colon != std::string::npos && line.substr(0, colon) == key) {
-      return trimmed(line.substr(colon + 2));
+
+    if (lineNumber == 1) {
+      if (line.size() != 8 || !line.starts_with("NRRD000") ||
+          !std::isdigit(static_cast<unsigned char>(line[7]))) {
+        throw Error(path, "not a NRRD file (the first line is not a NRRD000X magic)");
+      }
+      continue;
+    }
+    if (line.empty()) {
+      header.endsWithBlankLine = newline != std::string::npos;
+      header.headerBytes = std::min<uint64_t>(at, text.size());
+      return header;
+    }
+    if (line.front() == '#') continue;
+    // Text (UTF-8 allowed), no control characters: binary bytes are not a header line.
+    const bool printable = std::none_of(line.begin(), line.end(), [](char c) {
+      const auto u = static_cast<unsigned char>(c);
+      return (u < 0x20 && u != '\t') || u == 0x7f;
+    });
+    const std::size_t field = line.find(": ");
+    const std::size_t keyValue = line.find(":=");
+    if (!printable || (field == std::string::npos && keyValue == std::string::npos)) {
+      throw Error(path, fmt::format("header line {} is not a field ('name: value'), a key/value "
+                                    "pair ('key:=value') or a comment",
+                                    lineNumber));
+    }
+    if (keyValue != std::string::npos && (field == std::string::npos || keyValue < field)) {
+      continue;  // key/value pairs carry nothing octoray reads
+    }
+    const std::string name = canonicalNrrdField(line.substr(0, field));
+    if (!header.fields.emplace(name, trimmed(line.substr(field + 2))).second) {
+      throw Error(path, fmt::format("field '{}' appears twice in the header", name));
     }
   }
-  return std::nullopt;
+  if (truncatedByLimit) throw tooLong();
+  header.headerBytes = text.size();  // a detached header: the whole file
+  return header;
+}
+
+std::vector<std::string> words(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string word; in >> word;) out.push_back(word);
+  return out;
+}
+
+std::optional<int64_t> parseInteger(const std::string& token) {
+  int64_t value = 0;
+  const char* last = token.data() + token.size();
+  const auto [end, ec] = std::from_chars(token.data(), last, value);
+  if (ec != std::errc() || end != last) return std::nullopt;
+  return value;
+}
+
+// A decimal number in the C locale whatever the process locale; "nan" is accepted.
+std::optional<double> parseNumber(std::string token) {
+  token = trimmed(token);
+  if (token.starts_with('+')) token.erase(0, 1);
+  double value = 0;
+  const char* last = token.data() + token.size();
+  const auto [end, ec] = std::from_chars(token.data(), last, value);
+  if (ec != std::errc() || end != last || token.empty()) return std::nullopt;
+  return value;
+}
+
+// "(x,y,z)": a vector of numbers.
+std::optional<std::vector<double>> parseNrrdVector(const std::string& text) {
+  if (text.size() < 2 || text.front() != '(' || text.back() != ')') return std::nullopt;
+  std::vector<double> vector;
+  std::stringstream items(text.substr(1, text.size() - 2));
+  for (std::string item; std::getline(items, item, ',');) {
+    const auto value = parseNumber(item);
+    if (!value) return std::nullopt;
+    vector.push_back(*value);
+  }
+  if (vector.empty()) return std::nullopt;
+  return vector;
 }
 
 // "space directions": one "(x,y,z)" vector or "none" per axis.
 std::vector<std::optional<std::vector<double>>> parseSpaceDirections(const std::string& text,
                                                                      const std::string& path) {
   std::vector<std::optional<std::vector<double>>> axes;
-  std::size_t at = 0;
-  while ((at = text.find_first_not_of(" \t", at)) != std::string::npos) {
-    if (text.compare(at, 4, "none") == 0) {
+  for (const std::string& word : words(text)) {
+    if (word == "none") {
       axes.emplace_back(std::nullopt);
-      at += 4;
       continue;
     }
-    const auto close = text.find(')', at);
-    if (text[at] != '(' || close == std::string::npos) {
+    auto vector = parseNrrdVector(word);
+    if (!vector || vector->size() > 3 ||
+        !std::all_of(vector->begin(), vector->end(), [](double v) { return std::isfinite(v); })) {
       throw Error(path, fmt::format("malformed 'space directions': {}", text));
     }
-    std::vector<double> vector;
-    std::stringstream items(text.substr(at + 1, close - at - 1));
-    for (std::string item; std::getline(items, item, ',');) {
-      std::size_t used = 0;
-      double value = 0;
-      try {
-        value = std::stod(item, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used == 0 || !trimmed(item.substr(used)).empty()) {
-        throw Error(path, fmt::format("malformed 'space directions': {}", text));
-      }
-      vector.push_back(value);
-    }
     axes.emplace_back(std::move(vector));
-    at = close + 1;
   }
   return axes;
 }
@@ -153,29 +289,213 @@ Vec3 nrrdSpaceToLps(const std::optional<std::string>& space, std::vector<std::st
   return {1, 1, 1};
 }
 
-SampleType sampleTypeFromVtk(int vtkType, const std::string& path) {
-  switch (vtkType) {
-    case VTK_CHAR:
-    case VTK_SIGNED_CHAR:
-      return SampleType::Int8;
-    case VTK_UNSIGNED_CHAR:
-      return SampleType::UInt8;
-    case VTK_SHORT:
-      return SampleType::Int16;
-    case VTK_UNSIGNED_SHORT:
-      return SampleType::UInt16;
-    case VTK_INT:
-      return SampleType::Int32;
-    case VTK_UNSIGNED_INT:
-      return SampleType::UInt32;
-    case VTK_FLOAT:
-      return SampleType::Float32;
-    case VTK_DOUBLE:
-      return SampleType::Float64;
-    default:
-      throw Error(path, fmt::format("unsupported sample type (VTK type {}); supported: 8/16/32-bit "
-                                    "integers, float, double",
-                                    vtkType));
+// Kinds of axes that are positions along the grid; any other kind (vector, RGB-color, ...)
+// makes the axis a set of components of one sample.
+bool spatialKind(const std::string& kind) {
+  const std::string k = lowerCase(kind);
+  return k == "domain" || k == "space" || k == "time" || k == "???" || k == "none";
+}
+
+// One spatial axis of the grid: its size, and its step (direction * spacing) when known.
+struct NrrdAxis {
+  int64_t size = 1;
+  std::optional<std::vector<double>> direction;  // from "space directions"
+  double spacing = std::nan("");                 // from "spacings"
+};
+
+// The grid's axes from the per-axis fields. Scalar volumes only: an axis of components (a
+// "none" space direction, or a kind such as vector or RGB-color) must hold a single sample,
+// and is then dropped; at most three axes remain.
+std::vector<NrrdAxis> nrrdSpatialAxes(const NrrdHeader& header, const std::string& path,
+                                      std::vector<std::string>& warnings) {
+  const std::string dimensionText = *header.field("dimension");
+  const auto dimension = parseInteger(dimensionText);
+  if (!dimension || *dimension < 1 || *dimension > kMaxNrrdDimension) {
+    throw Error(path, fmt::format("invalid 'dimension: {}' (1 to {} expected)", dimensionText,
+                                  kMaxNrrdDimension));
+  }
+  const auto axisCount = static_cast<std::size_t>(*dimension);
+  // The words of a per-axis field, which must give one value per axis.
+  const auto perAxis = [&](const char* name) {
+    auto values = words(*header.field(name));
+    if (values.size() != axisCount) {
+      throw Error(path, fmt::format("'{}' gives {} value(s) for 'dimension: {}'", name,
+                                    values.size(), axisCount));
+    }
+    return values;
+  };
+
+  std::vector<NrrdAxis> axes(axisCount);
+  const auto sizes = perAxis("sizes");
+  for (std::size_t a = 0; a < axisCount; ++a) {
+    const auto size = parseInteger(sizes[a]);
+    if (!size || *size < 1) {
+      throw Error(path, fmt::format("invalid 'sizes: {}': '{}' is not a positive integer",
+                                    *header.field("sizes"), sizes[a]));
+    }
+    axes[a].size = *size;
+  }
+  if (header.field("spacings")) {
+    const auto spacings = perAxis("spacings");
+    for (std::size_t a = 0; a < axisCount; ++a) {
+      const auto spacing = parseNumber(spacings[a]);
+      if (!spacing) {
+        throw Error(path, fmt::format("invalid 'spacings: {}': '{}' is not a number",
+                                      *header.field("spacings"), spacings[a]));
+      }
+      axes[a].spacing = *spacing;
+    }
+  }
+  std::vector<bool> componentAxis(axisCount, false);
+  if (const auto text = header.field("space directions")) {
+    auto directions = parseSpaceDirections(*text, path);
+    if (directions.size() != axisCount) {
+      throw Error(path, fmt::format("'space directions' gives {} value(s) for 'dimension: {}'",
+                                    directions.size(), axisCount));
+    }
+    for (std::size_t a = 0; a < axisCount; ++a) {
+      componentAxis[a] = !directions[a];
+      axes[a].direction = std::move(directions[a]);
+    }
+    if (header.field("spacings")) {
+      warnings.push_back("'spacings' ignored: 'space directions' give the geometry");
+    }
+  }
+  if (header.field("kinds")) {
+    const auto kinds = perAxis("kinds");
+    for (std::size_t a = 0; a < axisCount; ++a) {
+      if (!spatialKind(kinds[a])) componentAxis[a] = true;
+    }
+  }
+
+  std::vector<NrrdAxis> spatial;
+  for (std::size_t a = 0; a < axisCount; ++a) {
+    if (!componentAxis[a]) {
+      spatial.push_back(axes[a]);
+    } else if (axes[a].size > 1) {
+      throw Error(path, fmt::format("samples with {} components are not supported (scalar "
+                                    "volumes only)",
+                                    axes[a].size));
+    }
+  }
+  if (spatial.empty()) throw Error(path, "no spatial axis (every axis holds components)");
+  if (spatial.size() > 3) {
+    throw Error(path, fmt::format("{} spatial axes: only volumes of up to 3 axes are supported",
+                                  spatial.size()));
+  }
+  return spatial;
+}
+
+// Index -> patient: space directions (full orientation) when present, else per-axis spacings.
+Mat4 nrrdPatientFromIndex(const NrrdHeader& header, const std::vector<NrrdAxis>& spatial,
+                          const std::string& path, std::vector<std::string>& warnings) {
+  std::array<Vec3, 3> unitAxes{Vec3{1, 0, 0}, Vec3{0, 1, 0}, Vec3{0, 0, 1}};
+  std::array<double, 3> spacingMm{1, 1, 1};
+  const bool directions = header.field("space directions").has_value();
+  if (directions) {
+    for (std::size_t a = 0; a < spatial.size(); ++a) {
+      const auto& v = *spatial[a].direction;
+      const Vec3 column{v[0], v.size() > 1 ? v[1] : 0, v.size() > 2 ? v[2] : 0};
+      spacingMm[a] = length(column);
+      unitAxes[a] = normalize(column);
+    }
+    // A single image: its slice axis is the normal, with a nominal 1 mm.
+    if (spatial.size() == 2) unitAxes[2] = normalize(cross(unitAxes[0], unitAxes[1]));
+  } else {
+    for (std::size_t a = 0; a < spatial.size(); ++a) {
+      const double s = spatial[a].spacing;
+      if (std::isfinite(s) && s != 0) {
+        spacingMm[a] = s;
+      } else if (header.field("spacings")) {
+        warnings.push_back(fmt::format("axis {} has no usable spacing ({}): 1 mm assumed", a, s));
+      }
+    }
+  }
+  Vec3 originMm{0, 0, 0};
+  if (const auto text = header.field("space origin")) {
+    const auto origin = parseNrrdVector(*text);
+    if (!origin || origin->size() > 3) {
+      throw Error(path, fmt::format("malformed 'space origin': {}", *text));
+    }
+    const auto& o = *origin;
+    originMm = {o[0], o.size() > 1 ? o[1] : 0, o.size() > 2 ? o[2] : 0};
+  }
+  Mat4 patientFromIndex = affineFromAxes(unitAxes, spacingMm, originMm);
+  if (directions) {
+    const Vec3 flip = nrrdSpaceToLps(header.field("space"), warnings);
+    for (int row = 0; row < 3; ++row) {
+      for (int col = 0; col < 4; ++col) patientFromIndex.m[row][col] *= flip[row];
+    }
+  } else {
+    warnings.push_back("no 'space directions': axis-aligned volume assumed");
+  }
+  detail::checkAffine(patientFromIndex, path);
+  return patientFromIndex;
+}
+
+// Where the samples are and how they are stored: type, encoding, byte order, data file and
+// skips. `layout.dims` must be set.
+void nrrdSampleLayout(const NrrdHeader& header, const std::string& path, detail::RawLayout& layout,
+                      std::vector<std::string>& warnings) {
+  try {
+    layout.sampleType = parseSampleType(*header.field("type"));
+  } catch (const Error& e) {
+    throw Error(path, e.reason());
+  }
+  const std::string encoding = *header.field("encoding");
+  if (lowerCase(encoding) == "gzip" || lowerCase(encoding) == "gz") {
+    layout.compression = detail::Compression::Deflate;
+  } else if (lowerCase(encoding) != "raw") {
+    throw Error(path, fmt::format("encoding '{}': only raw and gzip NRRD encodings are supported",
+                                  encoding));
+  }
+  layout.bigEndian = kHostBigEndian;
+  if (const auto endian = header.field("endian")) {
+    const std::string e = lowerCase(*endian);
+    if (e != "little" && e != "big") {
+      throw Error(path, fmt::format("invalid 'endian: {}' (little or big expected)", *endian));
+    }
+    layout.bigEndian = e == "big";
+  } else if (sampleBytes(layout.sampleType) > 1) {
+    warnings.push_back(fmt::format("no 'endian' field: {}-endian samples assumed",
+                                   kHostBigEndian ? "big" : "little"));
+  }
+
+  if (const auto dataFile = header.field("data file")) {
+    const auto parts = words(*dataFile);
+    const bool severalFiles = parts.empty() || parts.front() == "LIST" ||
+                              (parts.size() >= 4 && parts.front().find('%') != std::string::npos);
+    if (severalFiles) throw Error(path, "data split over several files is not supported");
+    layout.dataPath = dataFileBesideHeader(path, *dataFile, "data file");
+  } else if (header.endsWithBlankLine) {
+    layout.dataPath = path;
+    layout.fileOffsetBytes = header.headerBytes;
+  } else {
+    throw Error(path,
+                "the header has no 'data file' and no blank line after which attached "
+                "data would start");
+  }
+  if (const auto lineSkip = header.field("line skip"); lineSkip && parseInteger(*lineSkip) != 0) {
+    throw Error(path, fmt::format("'line skip: {}' is not supported", *lineSkip));
+  }
+  if (const auto byteSkip = header.field("byte skip")) {
+    const auto skip = parseInteger(*byteSkip);
+    if (!skip || *skip < -1) {
+      throw Error(path, fmt::format("invalid 'byte skip: {}' (-1 or more expected)", *byteSkip));
+    }
+    if (*skip != 0 && layout.compression != detail::Compression::None) {
+      throw Error(path, fmt::format("'byte skip: {}' is only supported with raw encoding", *skip));
+    }
+    if (*skip == -1) {
+      // The samples are the last bytes of the data file.
+      std::error_code ec;
+      const uint64_t fileBytes = std::filesystem::file_size(layout.dataPath, ec);
+      if (ec) throw Error(layout.dataPath, "cannot read the file: " + ec.message());
+      const uint64_t dataBytes = detail::volumeBytes(layout.dims, layout.sampleType, path);
+      layout.fileOffsetBytes = fileBytes >= dataBytes ? fileBytes - dataBytes : 0;
+    } else {
+      layout.fileOffsetBytes += static_cast<uint64_t>(*skip);
+    }
   }
 }
 
@@ -183,109 +503,31 @@ SampleType sampleTypeFromVtk(int vtkType, const std::string& path) {
 
 std::unique_ptr<VolumeSource> openNrrd(const std::string& path) {
   requireRegularFile(path);
-  vtkNew<NrrdHeaderReader> reader;
-  detail::VtkMessages messages(reader);
-  reader->SetFileName(path.c_str());
-  if (!reader->parseHeader() || !messages.errors().empty()) {
-    throw Error(path, messages.errors().empty()
-                          ? std::string("not a readable NRRD header")
-                          : "not a readable NRRD header: " + messages.errors().front());
+  const NrrdHeader header = readNrrdHeader(path);
+  std::vector<std::string> missing;
+  for (const char* required : {"type", "dimension", "sizes", "encoding"}) {
+    if (!header.field(required)) missing.emplace_back(required);
   }
+  if (!missing.empty()) {
+    throw Error(
+        path, fmt::format("NRRD header lacks the required field(s) {}", fmt::join(missing, ", ")));
+  }
+
   VolumeInfo info;
   info.format = "nrrd";
   info.sourcePath = path;
   info.description = fileNameOf(path);
-  for (const auto& warning : messages.warnings()) info.warnings.push_back(warning);
-
-  if (reader->dataFiles()->GetNumberOfValues() > 1) {
-    throw Error(path, "data split over several files is not supported");
+  for (const auto& [name, value] : header.fields) {
+    if (!knownNrrdField(name)) info.warnings.push_back(fmt::format("unknown field '{}'", name));
   }
-  if (!reader->rawEncoding() && !reader->gzipEncoding()) {
-    throw Error(path, "only raw and gzip NRRD encodings are supported");
-  }
-
-  const auto directionsText = nrrdField(path, "space directions");
-  std::vector<std::optional<std::vector<double>>> directions;
-  if (directionsText) directions = parseSpaceDirections(*directionsText, path);
-
-  // vtkNrrdReader takes a first axis of 9 samples or fewer as vector components. For a scalar
-  // volume of at most 3 axes, put that axis back; real vector data (a "none" first direction,
-  // or more than 3 axes) is refused.
-  int extent[6];
-  reader->GetDataExtent(extent);
-  std::array<int64_t, 3> dims{extent[1] + 1, extent[3] + 1, extent[5] + 1};
-  double spacing[3];
-  reader->GetDataSpacing(spacing);
-  std::array<double, 3> spacingMm{spacing[0], spacing[1], spacing[2]};
-  const int components = reader->GetNumberOfScalarComponents();
-  if (components > 1) {
-    const bool vectorAxis = !directions.empty() && !directions.front();
-    if (vectorAxis || reader->GetFileDimensionality() + 1 > 3) {
-      throw Error(path, fmt::format("samples with {} components are not supported (scalar "
-                                    "volumes only)",
-                                    components));
-    }
-    dims = {components, dims[0], dims[1]};
-    double firstSpacing = 1;
-    if (const auto spacings = nrrdField(path, "spacings")) {
-      std::stringstream values(*spacings);
-      if (!(values >> firstSpacing)) firstSpacing = 1;
-    }
-    spacingMm = {firstSpacing, spacingMm[0], spacingMm[1]};
-  }
-  info.dims = dims;
-
-  // Geometry: space directions (full orientation) when present, else per-axis spacings.
-  std::array<Vec3, 3> axes{Vec3{1, 0, 0}, Vec3{0, 1, 0}, Vec3{0, 0, 1}};
-  if (!directions.empty()) {
-    std::vector<std::vector<double>> spatial;
-    for (const auto& d : directions) {
-      if (d) spatial.push_back(*d);
-    }
-    if (spatial.size() > 3) throw Error(path, "more than 3 spatial axes are not supported");
-    for (std::size_t a = 0; a < spatial.size(); ++a) {
-      const auto& v = spatial[a];
-      const Vec3 column{v.size() > 0 ? v[0] : 0, v.size() > 1 ? v[1] : 0, v.size() > 2 ? v[2] : 0};
-      spacingMm[a] = length(column);
-      axes[a] = normalize(column);
-    }
-    if (spatial.size() == 2) {
-      // A single image: its slice axis is the normal, with a nominal 1 mm.
-      axes[2] = normalize(cross(axes[0], axes[1]));
-      spacingMm[2] = 1;
-    }
-  } else {
-    for (double& s : spacingMm) {
-      if (!std::isfinite(s) || s == 0) s = 1;
-    }
-  }
-  double origin[3];
-  reader->GetDataOrigin(origin);
-  Mat4 patientFromIndex = affineFromAxes(axes, spacingMm, {origin[0], origin[1], origin[2]});
-  if (directionsText) {
-    const Vec3 flip = nrrdSpaceToLps(nrrdField(path, "space"), info.warnings);
-    for (int row = 0; row < 3; ++row) {
-      for (int col = 0; col < 4; ++col) patientFromIndex.m[row][col] *= flip[row];
-    }
-  } else {
-    info.warnings.push_back("no 'space directions': axis-aligned volume assumed");
-  }
-  info.patientFromIndex = patientFromIndex;
-  detail::checkAffine(info.patientFromIndex, path);
+  const std::vector<NrrdAxis> spatial = nrrdSpatialAxes(header, path, info.warnings);
+  for (std::size_t a = 0; a < 3; ++a) info.dims[a] = a < spatial.size() ? spatial[a].size : 1;
+  info.patientFromIndex = nrrdPatientFromIndex(header, spatial, path, info.warnings);
 
   detail::RawLayout layout;
   layout.dims = info.dims;
-  layout.sampleType = sampleTypeFromVtk(reader->GetDataScalarType(), path);
-  layout.bigEndian = reader->GetSwapBytes() ? !kHostBigEndian : kHostBigEndian;
-  layout.compression =
-      reader->gzipEncoding() ? detail::Compression::Deflate : detail::Compression::None;
-  if (reader->dataFiles()->GetNumberOfValues() == 1) {
-    layout.dataPath = reader->dataFiles()->GetValue(0);
-    layout.fileOffsetBytes = 0;
-  } else {
-    layout.dataPath = path;
-    layout.fileOffsetBytes = reader->attachedHeaderBytes();
-  }
+  nrrdSampleLayout(header, path, layout, info.warnings);
+  detail::volumeBytes(layout.dims, layout.sampleType, path);  // sizes too large for any file
   return detail::openRawLayout(std::move(info), std::move(layout));
 }
 
@@ -328,11 +570,20 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
   // MetaIO parses the header and stops after ElementDataFile, the last field; reading through
   // our own stream tells where a LOCAL (.mha) payload starts.
   std::ifstream stream(path, std::ios::binary);
+  if (!stream) throw Error(path, "cannot open the file for reading");
   vtkmetaio::MetaImage image;
-  if (!stream || !image.ReadStream(0, &stream, false)) {
-    throw Error(path, "not a readable MetaImage header");
+  std::streamoff headerEnd = -1;
+  {
+    // MetaIO reports on std::cerr; its first line becomes the reason.
+    detail::StdStreamCapture capture;
+    const bool read = image.ReadStream(0, &stream, false);
+    if (!read) {
+      const std::string reason = capture.firstLine();
+      throw Error(path, reason.empty() ? std::string("not a readable MetaImage header")
+                                       : "not a readable MetaImage header: " + reason);
+    }
+    headerEnd = stream.tellg();
   }
-  const std::streamoff headerEnd = stream.tellg();
 
   const int nDims = image.NDims();
   if (nDims < 2 || nDims > 4) {
@@ -385,14 +636,7 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
                                   "supported",
                                   dataFile));
   }
-  if (local) {
-    layout.dataPath = path;
-  } else {
-    const std::filesystem::path file(dataFile);
-    layout.dataPath = file.is_absolute()
-                          ? file.string()
-                          : (std::filesystem::path(path).parent_path() / file).string();
-  }
+  layout.dataPath = local ? path : dataFileBesideHeader(path, dataFile, "ElementDataFile");
   const int headerSize = image.HeaderSize();
   if (headerSize > 0) {
     layout.fileOffsetBytes = static_cast<uint64_t>(headerSize);

@@ -1,28 +1,37 @@
 #pragma once
-// Internal: collects the error and warning messages a VTK object emits, so a reader's failure
-// becomes one octoray::Error naming the file instead of text on stderr.
+// Internal: collects the messages VTK objects and MetaIO emit, so a reader's failure becomes
+// one octoray::Error naming the file instead of text (and object dumps) on stderr.
 
+#include <vtkAlgorithm.h>
 #include <vtkCallbackCommand.h>
 #include <vtkCommand.h>
+#include <vtkExecutive.h>
 #include <vtkNew.h>
 #include <vtkObject.h>
 
+#include <iostream>
+#include <mutex>
+#include <sstream>
 #include <string>
 #include <vector>
 
 namespace octoray::detail {
 
+// Observes the error and warning events of a VTK object, and for an algorithm those of its
+// executive too: a failed pipeline request is reported by the executive, with a dump of the
+// request, which VTK would otherwise print.
 class VtkMessages {
  public:
-  explicit VtkMessages(vtkObject* object) : object_(object) {
-    callback_->SetClientData(this);
-    callback_->SetCallback(&VtkMessages::collect);
-    errorTag_ = object->AddObserver(vtkCommand::ErrorEvent, callback_);
-    warningTag_ = object->AddObserver(vtkCommand::WarningEvent, callback_);
+  explicit VtkMessages(vtkObject* object) { observe(object); }
+  explicit VtkMessages(vtkAlgorithm* algorithm) {
+    observe(algorithm);
+    observe(algorithm->GetExecutive());
   }
   ~VtkMessages() {
-    object_->RemoveObserver(errorTag_);
-    object_->RemoveObserver(warningTag_);
+    for (const auto& o : observed_) {
+      o.object->RemoveObserver(o.errorTag);
+      o.object->RemoveObserver(o.warningTag);
+    }
   }
   VtkMessages(const VtkMessages&) = delete;
   VtkMessages& operator=(const VtkMessages&) = delete;
@@ -31,6 +40,19 @@ class VtkMessages {
   const std::vector<std::string>& warnings() const { return warnings_; }
 
  private:
+  struct Observed {
+    vtkObject* object;
+    unsigned long errorTag, warningTag;
+  };
+
+  void observe(vtkObject* object) {
+    if (!object) return;
+    callback_->SetClientData(this);
+    callback_->SetCallback(&VtkMessages::collect);
+    observed_.push_back({object, object->AddObserver(vtkCommand::ErrorEvent, callback_),
+                         object->AddObserver(vtkCommand::WarningEvent, callback_)});
+  }
+
   // VTK prefixes "ERROR: In <file>, line <n>\n<class> (<address>): "; keep only the reason.
   static std::string reasonOnly(const char* text) {
     std::string message = text ? text : "";
@@ -49,12 +71,49 @@ class VtkMessages {
         .push_back(std::move(text));
   }
 
-  vtkObject* object_;
-  unsigned long errorTag_ = 0;
-  unsigned long warningTag_ = 0;
+  std::vector<Observed> observed_;
   vtkNew<vtkCallbackCommand> callback_;
   std::vector<std::string> errors_;
   std::vector<std::string> warnings_;
+};
+
+// Captures what is written to std::cerr and std::cout while it lives: MetaIO reports its
+// failures there directly, with no way to turn that off. The streams are process-wide, so
+// captures are serialised, and whatever another thread prints meanwhile is captured as well.
+class StdStreamCapture {
+ public:
+  StdStreamCapture()
+      : lock_(mutex()),
+        oldErr_(std::cerr.rdbuf(captured_.rdbuf())),
+        oldOut_(std::cout.rdbuf(captured_.rdbuf())) {}
+  ~StdStreamCapture() {
+    std::cerr.rdbuf(oldErr_);
+    std::cout.rdbuf(oldOut_);
+  }
+  StdStreamCapture(const StdStreamCapture&) = delete;
+  StdStreamCapture& operator=(const StdStreamCapture&) = delete;
+
+  // The first non-blank line captured so far, trimmed ("" when nothing was printed).
+  std::string firstLine() const {
+    std::istringstream lines(captured_.str());
+    for (std::string line; std::getline(lines, line);) {
+      const auto first = line.find_first_not_of(" \t\r");
+      if (first == std::string::npos) continue;
+      return line.substr(first, line.find_last_not_of(" \t\r") - first + 1);
+    }
+    return {};
+  }
+
+ private:
+  static std::mutex& mutex() {
+    static std::mutex m;
+    return m;
+  }
+
+  std::unique_lock<std::mutex> lock_;
+  std::ostringstream captured_;
+  std::streambuf* oldErr_;
+  std::streambuf* oldOut_;
 };
 
 }  // namespace octoray::detail

@@ -14,7 +14,9 @@
 namespace octoray::dicom {
 
 struct StackOptions {
-  double sliceSpacingMm = 0;  // output spacing when slices must be resampled; 0 = smallest gap
+  // Output spacing when slices must be resampled; 0 = smallest gap. A spacing that would make
+  // more than max(16 x images, 4096) slices is refused (resolveStack throws).
+  double sliceSpacingMm = 0;
 };
 
 // The resolved geometry of a stack of frames.

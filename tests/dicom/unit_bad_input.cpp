@@ -1,0 +1,358 @@
+// Bad input found by a black-box sweep (issue 14): each case must end in one octoray::Error
+// naming the file and the problem, quickly, with nothing else on stderr. Every call runs under
+// a deadline, so a regression to a hang fails instead of stalling the suite.
+
+#include <gdcmReader.h>
+#include <gdcmWriter.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <future>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "format_test_helpers.h"
+#include "octoray/core/error.h"
+#include "octoray/dicom/dicom_decode.h"
+#include "octoray/dicom/dicom_series.h"
+#include "octoray/dicom/dicom_volume.h"
+#include "octoray/dicom/formats.h"
+#include "octoray/dicom/synthetic_series.h"
+#include "test_paths.h"
+
+namespace octoray {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace formats_test;
+using namespace std::chrono_literals;
+
+constexpr auto kDeadline = 5s;
+
+// Runs `call` on its own thread and returns the message of the octoray::Error it throws
+// ("" when it returns normally). Past the deadline the call is taken to hang: the thread
+// cannot be stopped (and may be eating memory), so the failure is reported and the suite ends.
+template <typename F>
+std::string errorOf(F&& call, const std::string& what) {
+  std::packaged_task<std::string()> task([call = std::forward<F>(call)]() mutable {
+    try {
+      call();
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  });
+  auto result = task.get_future();
+  std::thread(std::move(task)).detach();
+  if (result.wait_for(kDeadline) != std::future_status::ready) {
+    // On stdout: stderr may be captured by the caller at this point.
+    std::printf("FAILED: %s did not finish within %lld s (hang regressed)\n", what.c_str(),
+                static_cast<long long>(kDeadline.count()));
+    std::fflush(stdout);
+    std::_Exit(1);
+  }
+  return result.get();
+}
+
+// Expects `call` to throw an octoray::Error mentioning every one of `mentions`, in time, and
+// to print nothing itself (libraries' own reports, object dumps) on stderr.
+template <typename F>
+void expectCleanError(F&& call, const std::vector<std::string>& mentions, const std::string& what) {
+  testing::internal::CaptureStderr();
+  const std::string message = errorOf(std::forward<F>(call), what);
+  const std::string printed = testing::internal::GetCapturedStderr();
+  ASSERT_FALSE(message.empty()) << what << ": no octoray::Error thrown";
+  for (const auto& mention : mentions) {
+    EXPECT_NE(message.find(mention), std::string::npos)
+        << what << ": '" << message << "' does not mention '" << mention << "'";
+  }
+  EXPECT_EQ(printed, "") << what << ": printed on stderr besides the error";
+}
+
+// ---- NIfTI ----------------------------------------------------------------------------------
+
+// A 4x4x4 int16 NIfTI-1 file (348-byte header, 4 bytes of extension flag, samples), in either
+// byte order.
+std::string niftiBytes(int16_t datatype, int16_t bitpix, int16_t ndim = 3, bool bigEndian = false) {
+  std::string bytes(352, '\0');
+  const auto put = [&](std::size_t offset, auto value) {
+    char b[sizeof value];
+    std::memcpy(b, &value, sizeof value);
+    if (bigEndian != (std::endian::native == std::endian::big)) std::reverse(b, b + sizeof value);
+    std::memcpy(bytes.data() + offset, b, sizeof value);
+  };
+  put(0, int32_t{348});
+  const int16_t dim[8] = {ndim, 4, 4, 4, 1, 1, 1, 1};
+  for (int i = 0; i < 8; ++i) put(40 + 2 * i, dim[i]);
+  put(70, datatype);
+  put(72, bitpix);
+  for (int i = 0; i < 8; ++i) put(76 + 4 * i, 1.0f);  // pixdim
+  put(108, 352.0f);                                   // vox_offset
+  put(112, 1.0f);                                     // scl_slope
+  std::memcpy(bytes.data() + 344, "n+1\0", 4);
+  return bytes + std::string(4 * 4 * 4 * 2, '\0');
+}
+
+TEST(BadInputNifti, UnknownDatatypeIsRefusedBeforeVtkReadsIt) {
+  const auto dir = test::freshTempDir("bad_nifti_datatype");
+  writeFile(dir / "good.nii", niftiBytes(4, 16));
+  EXPECT_EQ(openNifti((dir / "good.nii").string())->info().dims, (std::array<int64_t, 3>{4, 4, 4}));
+  writeFile(dir / "big.nii", niftiBytes(4, 16, 3, true));
+  EXPECT_EQ(openNifti((dir / "big.nii").string())->info().dims, (std::array<int64_t, 3>{4, 4, 4}));
+
+  // Unknown to NIfTI and to VTK: vtkNIFTIImageReader used to leave no header, and we crashed.
+  writeFile(dir / "unknown.nii", niftiBytes(12345, 16));
+  expectCleanError([&] { openNifti((dir / "unknown.nii").string()); },
+                   {"unknown.nii", "unsupported NIfTI datatype 12345"}, "datatype 12345");
+  writeFile(dir / "swapped.nii", niftiBytes(12345, 16, 3, true));
+  expectCleanError([&] { openNifti((dir / "swapped.nii").string()); },
+                   {"swapped.nii", "unsupported NIfTI datatype 12345"}, "datatype 12345, swapped");
+  writeFile(dir / "unknown.nii.gz", gzipBytes(niftiBytes(12345, 16)));
+  expectCleanError([&] { openVolume((dir / "unknown.nii.gz").string()); },
+                   {"unknown.nii.gz", "unsupported NIfTI datatype 12345"}, "datatype 12345, .gz");
+  // Known but not a scalar type.
+  writeFile(dir / "rgb.nii", niftiBytes(128, 24));
+  expectCleanError([&] { openNifti((dir / "rgb.nii").string()); },
+                   {"rgb.nii", "unsupported NIfTI datatype 128"}, "datatype 128");
+}
+
+TEST(BadInputNifti, BitpixMustMatchTheDatatype) {
+  const auto dir = test::freshTempDir("bad_nifti_bitpix");
+  writeFile(dir / "bitpix.nii", niftiBytes(4, 32));
+  expectCleanError([&] { openNifti((dir / "bitpix.nii").string()); },
+                   {"bitpix.nii", "bitpix 32 does not match datatype 4"}, "bitpix");
+}
+
+TEST(BadInputNifti, InvalidDimsGiveOneMessageWithoutVtkDumps) {
+  const auto dir = test::freshTempDir("bad_nifti_dims");
+  // dim[0] = 9 in either byte order: VTK's pipeline used to print an object dump first.
+  writeFile(dir / "dims.nii", niftiBytes(4, 16, 9));
+  expectCleanError([&] { openNifti((dir / "dims.nii").string()); }, {"dims.nii", "dim[0] = 9"},
+                   "dim[0]");
+  std::string zero = niftiBytes(4, 16);
+  zero[42] = zero[43] = 0;  // dim[1] = 0
+  writeFile(dir / "zero.nii", zero);
+  expectCleanError([&] { openNifti((dir / "zero.nii").string()); }, {"zero.nii", "dim[1] = 0"},
+                   "dim[1]");
+}
+
+// ---- MetaImage ------------------------------------------------------------------------------
+
+TEST(BadInputMetaImage, MetaIoReportsBecomeTheErrorNotStderr) {
+  const auto dir = test::freshTempDir("bad_meta_quiet");
+  writeFile(dir / "v.raw", std::string(4 * 4 * 4 * 2, '\0'));
+  // DimSize has two values for NDims = 3: MetaIO fails and used to print four lines.
+  writeFile(dir / "dims.mhd",
+            "ObjectType = Image\nNDims = 3\nDimSize = 4 4\nElementType = MET_SHORT\n"
+            "ElementDataFile = v.raw\n");
+  expectCleanError([&] { openMetaImage((dir / "dims.mhd").string()); },
+                   {"dims.mhd", "not a readable MetaImage header: "}, "MetaIO failure");
+}
+
+TEST(BadInputMetaImage, DataFileMustStayInTheHeadersFolder) {
+  const auto dir = test::freshTempDir("bad_meta_escape");
+  fs::create_directories(dir / "h");
+  writeFile(dir / "outside.raw", std::string(4 * 4 * 4 * 2, '\0'));
+  const std::string header =
+      "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_SHORT\n"
+      "ElementDataFile = ";
+  writeFile(dir / "h" / "up.mhd", header + "../outside.raw\n");
+  expectCleanError([&] { openMetaImage((dir / "h" / "up.mhd").string()); },
+                   {"up.mhd", "ElementDataFile '../outside.raw' is outside the header's folder"},
+                   "ElementDataFile ..");
+}
+
+// ---- NRRD -----------------------------------------------------------------------------------
+
+const std::string kNrrdFields = "type: int16\ndimension: 3\nsizes: 4 4 4\nendian: little\n";
+
+TEST(BadInputNrrd, HeaderWithoutFinalNewlineEnds) {
+  const auto dir = test::freshTempDir("bad_nrrd_newline");
+  // vtkNrrdReader looped forever on these: std::getline at the end kept the last line.
+  writeFile(dir / "m.nrrd", "NRRD0004\ntype: int16");
+  expectCleanError([&] { openNrrd((dir / "m.nrrd").string()); },
+                   {"m.nrrd", "lacks the required field(s) dimension, sizes, encoding"},
+                   "missing final newline");
+  writeFile(dir / "complete.nrrd", "NRRD0004\n" + kNrrdFields + "encoding: raw");
+  expectCleanError([&] { openNrrd((dir / "complete.nrrd").string()); },
+                   {"complete.nrrd", "no 'data file' and no blank line"},
+                   "complete header, no newline");
+}
+
+TEST(BadInputNrrd, BinaryAfterTheMagicIsNotAHeaderLine) {
+  const auto dir = test::freshTempDir("bad_nrrd_binary");
+  std::string junk = "NRRD0004\n";
+  for (int i = 0; i < 4096; ++i) junk += static_cast<char>((i * 131 + 7) % 256);
+  writeFile(dir / "junk.nrrd", junk);
+  expectCleanError([&] { openNrrd((dir / "junk.nrrd").string()); },
+                   {"junk.nrrd", "header line 2 is not a field"}, "random bytes");
+}
+
+TEST(BadInputNrrd, HeaderAndLinesAreLimitedTo1MiB) {
+  const auto dir = test::freshTempDir("bad_nrrd_long");
+  // 8 MB on one line: vtkNrrdReader's 4 MB buffer cut it and fell into the endless loop.
+  writeFile(dir / "line.nrrd", "NRRD0004\n# " + std::string(8 << 20, 'x') + "\n" + kNrrdFields);
+  expectCleanError([&] { openNrrd((dir / "line.nrrd").string()); },
+                   {"line.nrrd", "limited to 1 MiB"}, "8 MB line");
+  std::string many = "NRRD0004\n";
+  while (many.size() < (2u << 20)) many += "# a comment line of an overlong header\n";
+  writeFile(dir / "many.nhdr", many + kNrrdFields + "encoding: raw\ndata file: v.raw\n");
+  expectCleanError([&] { openNrrd((dir / "many.nhdr").string()); },
+                   {"many.nhdr", "limited to 1 MiB"}, "2 MB header");
+}
+
+TEST(BadInputNrrd, SizesAreStrictPositive64BitIntegers) {
+  const auto dir = test::freshTempDir("bad_nrrd_sizes");
+  writeFile(dir / "v.raw", std::string(4 * 4 * 4 * 2, '\0'));
+  const auto header = [](const std::string& sizes) {
+    return "NRRD0004\ntype: int16\ndimension: 3\nsizes: " + sizes +
+           "\nendian: little\nencoding: raw\ndata file: v.raw\n";
+  };
+  // Read before as 32x32x1 (a "vector" axis of -5) and 1x1x1 (atoi("1e10")).
+  for (const std::string bad : {"-5", "1e10", "0", "2.5", "99999999999999999999"}) {
+    writeFile(dir / "s.nhdr", header(bad + " 4 4"));
+    expectCleanError([&] { openNrrd((dir / "s.nhdr").string()); },
+                     {"s.nhdr", fmt::format("'{}' is not a positive integer", bad)},
+                     "sizes " + bad);
+  }
+  writeFile(dir / "count.nhdr", header("4 4"));
+  expectCleanError([&] { openNrrd((dir / "count.nhdr").string()); },
+                   {"count.nhdr", "'sizes' gives 2 value(s) for 'dimension: 3'"}, "sizes count");
+  // 2^32 samples: the message keeps all 64 bits (8589934592 bytes of int16).
+  writeFile(dir / "wide.nhdr", header("4294967296 1 1"));
+  expectCleanError([&] { openNrrd((dir / "wide.nhdr").string()); },
+                   {"v.raw", "expected 8589934592 bytes"}, "sizes 2^32");
+  writeFile(dir / "huge.nhdr", header("4294967296 4294967296 4294967296"));
+  expectCleanError([&] { openNrrd((dir / "huge.nhdr").string()); }, {"huge.nhdr", "too large"},
+                   "sizes overflowing");
+}
+
+TEST(BadInputNrrd, SpacingsAreHonouredInAnyFieldOrder) {
+  const auto dir = test::freshTempDir("bad_nrrd_spacings");
+  writeFile(dir / "v.raw", std::string(4 * 4 * 4 * 2, '\0'));
+  // vtkNrrdReader dropped "spacings" given before "dimension".
+  writeFile(dir / "v.nhdr",
+            "NRRD0004\nspacings: 0.7 0.8 2.5\ntype: int16\ndimension: 3\nsizes: 4 4 4\n"
+            "endian: little\nencoding: raw\ndata file: v.raw\n");
+  const auto source = openNrrd((dir / "v.nhdr").string());
+  const Vec3 spacing = source->info().spacingMm();
+  EXPECT_NEAR(spacing.x, 0.7, 1e-12);
+  EXPECT_NEAR(spacing.y, 0.8, 1e-12);
+  EXPECT_NEAR(spacing.z, 2.5, 1e-12);
+  writeFile(dir / "bad.nhdr",
+            "NRRD0004\n" + kNrrdFields + "spacings: 1 one 1\nencoding: raw\ndata file: v.raw\n");
+  expectCleanError([&] { openNrrd((dir / "bad.nhdr").string()); },
+                   {"bad.nhdr", "'one' is not a number"}, "spacings word");
+}
+
+TEST(BadInputNrrd, DataFileMustStayInTheHeadersFolder) {
+  const auto dir = test::freshTempDir("bad_nrrd_escape");
+  fs::create_directories(dir / "h" / "sub");
+  const std::string samples(4 * 4 * 4 * 2, '\0');
+  writeFile(dir / "outside.raw", samples);
+  writeFile(dir / "h" / "sub" / "inside.raw", samples);
+  const auto header = [&](const std::string& dataFile) {
+    return "NRRD0004\n" + kNrrdFields + "encoding: raw\ndata file: " + dataFile + "\n";
+  };
+  for (const std::string& escape :
+       {std::string("../outside.raw"), std::string("sub/../../outside.raw"),
+        (dir / "outside.raw").string(), std::string("/etc/passwd")}) {
+    writeFile(dir / "h" / "v.nhdr", header(escape));
+    expectCleanError(
+        [&] { openNrrd((dir / "h" / "v.nhdr").string()); },
+        {"v.nhdr", fmt::format("data file '{}' is outside the header's folder", escape)},
+        "data file " + escape);
+  }
+  // The header's folder and below are fine, relative or absolute.
+  for (const std::string& inside :
+       {std::string("sub/inside.raw"), std::string("./sub/../sub/inside.raw"),
+        (dir / "h" / "sub" / "inside.raw").string()}) {
+    writeFile(dir / "h" / "v.nhdr", header(inside));
+    EXPECT_EQ(openNrrd((dir / "h" / "v.nhdr").string())->info().dims,
+              (std::array<int64_t, 3>{4, 4, 4}))
+        << inside;
+  }
+  // A file-name pattern of two billion files: refused, not expanded.
+  writeFile(dir / "h" / "v.nhdr", header("slice%03d.raw 0 2000000000 1"));
+  expectCleanError([&] { openNrrd((dir / "h" / "v.nhdr").string()); },
+                   {"v.nhdr", "data split over several files is not supported"}, "pattern");
+}
+
+// ---- DICOM ----------------------------------------------------------------------------------
+
+// Sets one element of a DICOM file to a string value (padded to even length).
+void rewriteElement(const fs::path& path, const gdcm::Tag& tag, const gdcm::VR& vr,
+                    std::string text) {
+  gdcm::Reader reader;
+  reader.SetFileName(path.c_str());
+  ASSERT_TRUE(reader.Read()) << path;
+  gdcm::DataElement element(tag);
+  element.SetVR(vr);
+  if (text.size() % 2) text += ' ';
+  element.SetByteValue(text.data(), static_cast<uint32_t>(text.size()));
+  reader.GetFile().GetDataSet().Replace(element);
+  gdcm::Writer writer;
+  writer.SetFileName(path.c_str());
+  writer.SetFile(reader.GetFile());
+  ASSERT_TRUE(writer.Write()) << path;
+}
+
+TEST(BadInputDicom, NumberOfFramesBeyondThePixelDataIsRefusedBeforeAllocating) {
+  const auto dir = test::freshTempDir("bad_dicom_frames");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 6;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path damaged = written.slices().front().path;
+  // One billion frames of 16x16 int16: half a terabyte the file does not hold.
+  rewriteElement(damaged, gdcm::Tag(0x0028, 0x0008), gdcm::VR::IS, "1000000000");
+
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+  ASSERT_EQ(scan.skipped.size(), 1u);
+  EXPECT_EQ(scan.skipped[0].path, damaged.string());
+  EXPECT_NE(scan.skipped[0].reason.find("1000000000 frames"), std::string::npos)
+      << scan.skipped[0].reason;
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+
+  expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); },
+                   {damaged.string(), "1000000000 frames"}, "decodeDicomFile");
+  for (const std::string bad : {"1e12", "-3", "2.5"}) {
+    rewriteElement(damaged, gdcm::Tag(0x0028, 0x0008), gdcm::VR::IS, bad);
+    const dicom::DicomScan again = dicom::scanDicom(dir);
+    ASSERT_EQ(again.skipped.size(), 1u) << bad;
+    EXPECT_NE(again.skipped[0].reason.find("invalid NumberOfFrames"), std::string::npos)
+        << bad << ": " << again.skipped[0].reason;
+  }
+}
+
+TEST(BadInputDicom, SliceSpacingThatWouldMakeMillionsOfSlicesIsRefused) {
+  const auto dir = test::freshTempDir("bad_dicom_spacing");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 8;
+  spec.sliceSpacingMm = 1.25;
+  dicom::writeSyntheticSeries(dir, spec);
+  const dicom::DicomScan scan = dicom::scanDicom(dir);
+  ASSERT_EQ(scan.series.size(), 1u);
+  const dicom::DicomSeries& series = scan.series[0];
+  const std::string first = series.frames.front().path;
+
+  // 8.75 mm at 1e-6 mm: 8.75 million slices, which reading never finished.
+  expectCleanError([&] { dicom::openDicomSeries(series, {1e-6}); },
+                   {first, "--slice-spacing", "8750001 slices"}, "--slice-spacing 1e-6");
+  expectCleanError([&] { dicom::resolveStack(series, {std::nan("")}); },
+                   {first, "--slice-spacing", "not a finite number"}, "--slice-spacing nan");
+  // Finer than the series but sane: accepted.
+  EXPECT_EQ(dicom::resolveStack(series, {0.125}).outputSlices, 71);
+}
+
+}  // namespace
+}  // namespace octoray
