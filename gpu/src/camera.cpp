@@ -133,6 +133,10 @@ Camera orbitCamera(const VolumeDomain& domain, const OrbitParameters& orbit) {
   if (!std::isfinite(orbit.azimuthDegrees) || !std::isfinite(orbit.elevationDegrees)) {
     throw Error("", "azimuth and elevation must be finite");
   }
+  // Checked here, before the eye distance divides by it (--fov 0 said "non-finite vector").
+  if (orbit.projection == Projection::Perspective && !(orbit.fovYDegrees > 0 && orbit.fovYDegrees < 180)) {
+    throw Error("", fmt::format("field of view {} degrees (--fov) must be in (0, 180)", orbit.fovYDegrees));
+  }
   const double az = orbit.azimuthDegrees * kDegrees;
   const double el = orbit.elevationDegrees * kDegrees;
   // Unit vector from the centre to the eye, and its derivative in elevation as the up vector

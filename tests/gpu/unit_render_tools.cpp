@@ -104,6 +104,10 @@ TEST_F(RenderTools, ModesAndErrors) {
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
     EXPECT_EQ(e.path().filename().string().find(".partial"), std::string::npos) << e.path();
   }
+  // A field of view of 0: named as such (it said "camera: non-finite vector").
+  const ProcessResult fov = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--fov", "0"});
+  EXPECT_EQ(fov.exitCode, 1);
+  EXPECT_NE(fov.err.find("field of view 0 degrees (--fov) must be in (0, 180)"), std::string::npos) << fov.err;
   // GPU-only options with --reference, and --gpu with --reference, are usage errors.
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--lod-pixels", "2"})
                 .exitCode,

@@ -252,6 +252,18 @@ TEST_F(DamagedStore, SwappedBricksFailBordersOrFilterNotChecksums) {
   EXPECT_TRUE(namesA);
 }
 
+// A flipped byte in the version field is damage ("corrupted"), not a store from the future.
+TEST_F(DamagedStore, FlippedVersionByteIsCorruptionNotAFutureVersion) {
+  bytes_[offsetof(StoreHeader, version) + 3] ^= 0xe6;
+  const std::string damaged = copyWith(path_, "version.octoray", bytes_);
+  try {
+    StoreReader reader(damaged);
+    FAIL() << "opened";
+  } catch (const octoray::Error& e) {
+    EXPECT_NE(e.reason().find("header: corrupted (version field reads"), std::string::npos) << e.what();
+  }
+}
+
 TEST_F(DamagedStore, NarrowedRangeFailsRanges) {
   const StoreReader store(path_);
   const int64_t id = payloadNode(store, 2);

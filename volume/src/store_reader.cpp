@@ -44,6 +44,11 @@ StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileB
     throw Error(path, "header: not an octoray store (bad magic)");
   }
   if (h.version != kStoreVersion) {
+    // Another version's header may be laid out differently, so its checksum cannot be checked
+    // here; a version number no release will reach is damage, not the future.
+    if (h.version == 0 || h.version > 1000) {
+      throw Error(path, fmt::format("header: corrupted (version field reads {})", h.version));
+    }
     throw Error(path, fmt::format("header: store version {} is not supported (this build reads "
                                   "version {})", h.version, kStoreVersion));
   }
