@@ -13,8 +13,22 @@ echo "== AddressSanitizer + UndefinedBehaviorSanitizer build and tests"
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DOCTORAY_SANITIZE=ON \
   -DOCTORAY_BUILD_BENCHMARKS=OFF
 cmake --build build-asan -j "$jobs"
-ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-  ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900
+export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+if ! ctest --test-dir build-asan --output-on-failure -j "$jobs" --timeout 900; then
+  # LeakSanitizer's own tracer (the thread that stops the others for the exit-time leak check)
+  # now and then segfaults in GL programs after every check passed: "Tracer caught signal 11",
+  # a sanitizer runtime fault (google/sanitizers#1353), not a leak and not our code. Only when
+  # every failure shows it are the failed tests run once more; any other failure fails here.
+  failed=$(wc -l < build-asan/Testing/Temporary/LastTestsFailed.log)
+  tracer=$(grep -c "LeakSanitizer does not work under ptrace" build-asan/Testing/Temporary/LastTest.log || true)
+  if ((tracer >= failed)); then
+    echo "== LeakSanitizer's tracer crashed in ${failed} test(s) after their checks; rerunning them once"
+    ctest --test-dir build-asan --output-on-failure --rerun-failed --timeout 900
+  else
+    exit 1
+  fi
+fi
+unset ASAN_OPTIONS UBSAN_OPTIONS
 echo "== ThreadSanitizer: the brick loader, the caches and the working set"
 # A separate build: the loader's threads, the cache they fill and the working set that polls,
 # requests, cancels and shuts them down mid-load, with every data race an error.

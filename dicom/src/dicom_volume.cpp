@@ -201,6 +201,7 @@ StackGeometry resolveStack(const DicomSeries& series, const StackOptions& option
   }
   g.patientFromIndex = Mat4::fromColumns(series.columnSpacingMm * rowDir,
                                          series.rowSpacingMm * colDir, g.sliceStepMm, origin);
+  checkGeometry(g.patientFromIndex, where);  // PixelSpacing 1e308, positions near 1e300, ...
   return g;
 }
 

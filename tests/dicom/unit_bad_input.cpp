@@ -6,6 +6,8 @@
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
 
+#include <tuple>
+
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -352,6 +354,26 @@ TEST(BadInputDicom, SliceSpacingThatWouldMakeMillionsOfSlicesIsRefused) {
                    {first, "--slice-spacing", "not a finite number"}, "--slice-spacing nan");
   // Finer than the series but sane: accepted.
   EXPECT_EQ(dicom::resolveStack(series, {0.125}).outputSlices, 71);
+}
+
+// PixelSpacing 1e308 (or a position near 1e300) in every file: the stack is refused where it
+// is formed, so --inspect, --export, -o, the viewer and the validator all refuse it (import
+// used to write a store that octoray-validate then rejected).
+TEST(BadInputDicom, HugeSpacingOrPositionIsRefusedWhereTheStackIsFormed) {
+  for (const auto& [tag, vr, value] :
+       {std::tuple{gdcm::Tag(0x0028, 0x0030), gdcm::VR::DS, std::string("1e308\\1e308")},
+        std::tuple{gdcm::Tag(0x0020, 0x0032), gdcm::VR::DS, std::string("1e300\\0\\0")}}) {
+    SCOPED_TRACE(value);
+    const auto dir = test::freshTempDir("bad_dicom_huge");
+    dicom::SyntheticSeriesSpec spec;
+    spec.sliceCount = 4;
+    const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+    for (const auto& image : written.slices()) rewriteElement(image.path, tag, vr, value);
+    const dicom::DicomScan scan = dicom::scanDicom(dir);
+    ASSERT_EQ(scan.series.size(), 1u);
+    expectCleanError([&] { dicom::resolveStack(scan.series[0]); },
+                     {scan.series[0].frames.front().path, "the geometry is not usable"}, "resolveStack");
+  }
 }
 
 }  // namespace

@@ -499,6 +499,8 @@ BuildReport buildWith(VolumeSource& source, const std::string& outPath, const Bu
 BuildReport buildStore(VolumeSource& source, const std::string& outPath, const BuildOptions& options) {
   const VolumeInfo& info = source.info();
   if (info.sampleCount() <= 0) throw Error(info.sourcePath, "volume has no samples");
+  // What the reader (and the validator) would refuse is refused before anything is written.
+  checkGeometry(info.patientFromIndex, info.sourcePath);
   const ValueMapping mapping = chooseMapping(info, options.format);
   try {
     if (mapping.format == SampleFormat::UInt16) return buildWith<uint16_t>(source, outPath, options, mapping);

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -13,6 +14,7 @@
 
 #include "codec.h"
 #include "octoray/core/error.h"
+#include "octoray/dicom/volume_source.h"
 
 namespace octoray::volume {
 namespace {
@@ -72,6 +74,17 @@ StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileB
   }
   for (double v : h.patientFromIndex) {
     if (!std::isfinite(v)) throw Error(path, "header: non-finite affine");
+  }
+  {
+    Mat4 m;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 4; ++c) m.m[r][c] = h.patientFromIndex[r * 4 + c];
+    }
+    try {
+      checkGeometry(m, path);
+    } catch (const Error& e) {
+      throw Error(path, "header: " + e.reason());
+    }
   }
   if (!std::isfinite(h.valueScale) || !std::isfinite(h.valueOffset) || h.valueScale == 0) {
     throw Error(path, "header: invalid value mapping");

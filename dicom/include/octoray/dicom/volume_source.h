@@ -53,6 +53,12 @@ class VolumeSource {
   virtual void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) = 0;
 };
 
+// Checks that an index->patient affine is usable: finite, invertible, every spacing in
+// [1e-6, 1e6] mm, the first voxel within 1e6 mm of the origin. Throws octoray::Error naming `path` otherwise. Every reader of geometry
+// (DICOM stacks, the store builder, the store reader, the validators) applies it, so what one
+// refuses none accepts.
+void checkGeometry(const Mat4& patientFromIndex, const std::string& path);
+
 // Checks a slab request against the volume; throws octoray::Error naming `path` if invalid.
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,
                       std::size_t outSize);
