@@ -184,6 +184,7 @@ PatientIdentity readPatientIdentity(const std::string& path) {
   p.birthDate = stringValue(ds, gdcm::Tag(0x0010, 0x0030));
   p.studyDate = stringValue(ds, gdcm::Tag(0x0008, 0x0020));
   p.studyDescription = stringValue(ds, gdcm::Tag(0x0008, 0x1030));
+  p.studyUid = stringValue(ds, gdcm::Tag(0x0020, 0x000D));
   return p;
 }
 
@@ -384,6 +385,10 @@ bool isDicomDirName(const fs::path& p) { return lowercase(p.filename().string())
 
 }  // namespace
 
+namespace {
+void readSeries(const std::vector<std::string>& files, const ScanOptions& options, DicomScan& scan);
+}  // namespace
+
 DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
   detail::quietGdcm();
   DicomScan scan;
@@ -418,7 +423,23 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
     files.push_back(path.string());
   }
   (void)fromDirectory;
+  readSeries(files, options, scan);
+  return scan;
+}
 
+DicomScan scanDicomFiles(std::vector<std::string> files, const ScanOptions& options) {
+  detail::quietGdcm();
+  std::sort(files.begin(), files.end());
+  files.erase(std::unique(files.begin(), files.end()), files.end());
+  DicomScan scan;
+  readSeries(files, options, scan);
+  return scan;
+}
+
+namespace {
+
+// Reads the headers of `files` (sorted) and groups them into scan.series.
+void readSeries(const std::vector<std::string>& files, const ScanOptions& options, DicomScan& scan) {
   // Headers are read in parallel; results keep the sorted file order.
   std::vector<std::optional<FileHeader>> headers(files.size());
   std::vector<std::string> failures(files.size());
@@ -496,8 +517,9 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
                      return std::tie(a.seriesNumber, a.seriesUid) <
                             std::tie(b.seriesNumber, b.seriesUid);
                    });
-  return scan;
 }
+
+}  // namespace
 
 std::size_t defaultSeriesIndex(const DicomScan& scan, const std::string& path) {
   std::optional<std::size_t> best;

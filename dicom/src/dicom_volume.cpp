@@ -218,6 +218,10 @@ class DicomVolumeSource final : public VolumeSource {
     info.patientFromIndex = geometry_.patientFromIndex;
     info.format = "dicom";
     info.sourcePath = firstPath(series);
+    for (const FrameRef& frame : series.frames) info.sourceFiles.push_back(frame.path);
+    std::sort(info.sourceFiles.begin(), info.sourceFiles.end());
+    info.sourceFiles.erase(std::unique(info.sourceFiles.begin(), info.sourceFiles.end()),
+                           info.sourceFiles.end());
     info.modality = series.modality;
     info.description = series.description;
     info.seriesUid = series.seriesUid;

@@ -384,6 +384,9 @@ std::unique_ptr<VolumeSource> openRawLayout(VolumeInfo info, RawLayout layout) {
   if (info.dims != layout.dims) {
     throw Error(info.sourcePath, "internal: volume and data layout disagree on the dimensions");
   }
+  info.sourceFiles = {info.sourcePath};
+  if (layout.dataPath != info.sourcePath) info.sourceFiles.push_back(layout.dataPath);
+  std::sort(info.sourceFiles.begin(), info.sourceFiles.end());
   info.integerValues = integerValued(layout.sampleType, layout.valueScale, layout.valueOffset);
   if (info.integerValues) {
     // The storage type's range, mapped through the value scale and offset.

@@ -89,6 +89,8 @@ class TiffSource final : public VolumeSource {
     detail::checkAffine(info_.patientFromIndex, path);
     info_.format = "tiff";
     info_.sourcePath = path;
+    info_.sourceFiles = files_;
+    std::sort(info_.sourceFiles.begin(), info_.sourceFiles.end());
     info_.description = std::filesystem::path(path).filename().string();
     info_.integerValues = first.depth() != CV_32F && first.depth() != CV_64F;
     if (first.depth() == CV_8U) {

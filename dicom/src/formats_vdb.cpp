@@ -293,6 +293,7 @@ std::unique_ptr<VolumeSource> openVdb(const std::string& path) {
   VolumeInfo info;
   info.format = "vdb";
   info.sourcePath = path;
+  info.sourceFiles = {path};
   try {
     CheckedVdbReader file(path);
     const openvdb::GridBase::Ptr grid = chooseGrid(file, path, info.warnings);

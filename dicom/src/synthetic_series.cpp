@@ -335,8 +335,9 @@ void putCommon(gdcm::DataSet& ds, const SyntheticSeriesSpec& spec, const Synthet
   putString(ds, 0x0008, 0x0030, gdcm::VR::TM, "120000");
   putString(ds, 0x0008, 0x0050, gdcm::VR::SH, fmt::format("SYN{}", spec.seed % 1000000));
   putString(ds, 0x0008, 0x0070, gdcm::VR::LO, "octoray");
-  putString(ds, 0x0010, 0x0010, gdcm::VR::PN, "OCTORAY^SYNTHETIC");
-  putString(ds, 0x0010, 0x0020, gdcm::VR::LO, fmt::format("SYN{}", spec.seed % 1000000));
+  putString(ds, 0x0010, 0x0010, gdcm::VR::PN, spec.patientName);
+  putString(ds, 0x0010, 0x0020, gdcm::VR::LO,
+            spec.patientId.empty() ? fmt::format("SYN{}", spec.seed % 1000000) : spec.patientId);
   putString(ds, 0x0020, 0x000D, gdcm::VR::UI, out.studyUid);
   putString(ds, 0x0020, 0x0010, gdcm::VR::SH, "1");
 }

@@ -1,12 +1,53 @@
 #include "octoray/dicom/volume_source.h"
 
+#include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+#include <vector>
+
+#include <xxhash.h>
 
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
 
 namespace octoray {
+
+namespace {
+
+XXH128_hash_t hashFile(const std::string& path) {
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), std::fclose);
+  if (!file) throw Error(path, fmt::format("cannot read the file: {}", std::strerror(errno)));
+  std::unique_ptr<XXH3_state_t, XXH_errorcode (*)(XXH3_state_t*)> state(XXH3_createState(),
+                                                                         XXH3_freeState);
+  XXH3_128bits_reset(state.get());
+  std::vector<char> buffer(std::size_t{1} << 20);
+  while (true) {
+    const std::size_t got = std::fread(buffer.data(), 1, buffer.size(), file.get());
+    XXH3_128bits_update(state.get(), buffer.data(), got);
+    if (got < buffer.size()) break;
+  }
+  if (std::ferror(file.get())) throw Error(path, "read error while hashing the file");
+  return XXH3_128bits_digest(state.get());
+}
+
+}  // namespace
+
+std::string sourceContentHash(const std::vector<std::string>& files) {
+  std::vector<XXH128_canonical_t> digests(files.size());
+  for (std::size_t i = 0; i < files.size(); ++i) XXH128_canonicalFromHash(&digests[i], hashFile(files[i]));
+  std::sort(digests.begin(), digests.end(), [](const auto& a, const auto& b) {
+    return std::memcmp(a.digest, b.digest, sizeof a.digest) < 0;
+  });
+  XXH128_canonical_t combined;
+  XXH128_canonicalFromHash(&combined, XXH3_128bits(digests.data(), digests.size() * sizeof(XXH128_canonical_t)));
+  std::string hex;
+  for (unsigned char byte : combined.digest) hex += fmt::format("{:02x}", byte);
+  return hex;
+}
 
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,
                       std::size_t outSize) {

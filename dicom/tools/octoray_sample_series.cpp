@@ -40,6 +40,10 @@ int main(int argc, char** argv) {
   app.add_flag("--variable-gaps", variableGaps,
                "every third gap is 1.5 times the slice spacing (the reader resamples)");
   app.add_flag("--with-localizer", withLocalizer, "also write a coronal localizer image");
+  std::string patientName = "OCTORAY^SYNTHETIC", patientId;
+  app.add_option("--patient-name", patientName, "PatientName (DICOM person name, e.g. DOE^JANE)")
+      ->capture_default_str();
+  app.add_option("--patient-id", patientId, "PatientID (default: SYN and the seed)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -63,6 +67,8 @@ int main(int argc, char** argv) {
     spec.tiltDegrees = tiltDegrees;
     spec.seed = seed;
     spec.withLocalizer = withLocalizer;
+    spec.patientName = patientName;
+    spec.patientId = patientId;
     spec.sliceCount = slices;
     if (variableGaps) {
       // Gaps of 1, 1, 1.5 times the spacing, repeating: not an affine grid.

@@ -435,6 +435,7 @@ std::string provenance(const VolumeInfo& info, const BuildOptions& options) {
                  {"description", info.description}, {"seriesUid", info.seriesUid},
                  {"unit", info.unit}, {"tiltDegrees", info.tiltDegrees},
                  {"resampled", info.resampled}, {"warnings", info.warnings.size()}};
+  if (!options.sourceContentHash.empty()) j["source"]["contentHash"] = options.sourceContentHash;
   j["builder"] = {{"software", "octoray"}, {"storeVersion", kStoreVersion},
                   {"brickSize", options.brickSize}, {"border", options.border},
                   {"gradients", options.gradients}, {"codec", detail::codecName(options.codec)}};

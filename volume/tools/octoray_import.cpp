@@ -322,6 +322,7 @@ int buildStoreFile(const Arguments& a) {
                    : a.storeFormat == "float32" ? volume::BuildOptions::Format::Float32
                                                 : volume::BuildOptions::Format::Auto;
   options.memoryBudgetBytes = a.memoryBudgetMiB << 20;
+  if (!info.sourceFiles.empty()) options.sourceContentHash = sourceContentHash(info.sourceFiles);
   options.cancel = &gStop;
   cli::ProgressBar bar("building");
   options.progress = [&](int64_t done, int64_t total) {

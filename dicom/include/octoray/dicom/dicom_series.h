@@ -81,7 +81,7 @@ struct ScanOptions {
 // provenance). Empty strings where the file has no value. Throws octoray::Error naming the
 // file when it cannot be parsed.
 struct PatientIdentity {
-  std::string name, id, birthDate, studyDate, studyDescription;
+  std::string name, id, birthDate, studyDate, studyDescription, studyUid;
 };
 PatientIdentity readPatientIdentity(const std::string& file);
 
@@ -89,6 +89,10 @@ PatientIdentity readPatientIdentity(const std::string& file);
 // holding a DICOMDIR is still searched file by file, and the DICOMDIR's list is checked
 // against what is present. Throws octoray::Error only when `path` itself cannot be read.
 DicomScan scanDicom(const std::filesystem::path& path, const ScanOptions& options = {});
+
+// Reads exactly `files` (sorted, duplicates dropped) and groups them into series as scanDicom
+// does: what re-opens one series of an earlier scan from its list of files.
+DicomScan scanDicomFiles(std::vector<std::string> files, const ScanOptions& options = {});
 
 // The series a user most likely wants: the Volume series with the most frames. Throws
 // octoray::Error naming `path` when there is no volumetric series.

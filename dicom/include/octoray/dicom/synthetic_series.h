@@ -88,6 +88,8 @@ struct SyntheticSeriesSpec {
   bool withSecondaryCapture = false;  // one Secondary Capture image without geometry
 
   uint64_t seed = 1;  // all UIDs derive from it: the same spec writes the same files
+  std::string patientName = "OCTORAY^SYNTHETIC";
+  std::string patientId;  // empty: "SYN" and the seed
   int seriesNumber = 2;
   std::string seriesDescription = "octoray synthetic CT";
 };

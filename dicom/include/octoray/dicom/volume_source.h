@@ -20,6 +20,10 @@ struct VolumeInfo {
   Mat4 patientFromIndex;                 // index -> patient (LPS, mm); may contain shear
   std::string format;                    // "dicom", "raw", "nrrd", "metaimage", "nifti", "tiff", "vdb"
   std::string sourcePath;                // the file or folder the volume came from
+  // Every file the samples are read from (a DICOM series' files, a header and its data file,
+  // a TIFF folder's pages), sorted: what sourceContentHash() covers. Empty for sources that
+  // are not files (the phantom, test volumes).
+  std::vector<std::string> sourceFiles;
   std::string modality;                  // DICOM modality ("CT", "MR", ...) or empty
   std::string description;               // series description or file name
   std::string seriesUid;                 // DICOM SeriesInstanceUID or empty
@@ -58,6 +62,12 @@ class VolumeSource {
 // (DICOM stacks, the store builder, the store reader, the validators) applies it, so what one
 // refuses none accepts.
 void checkGeometry(const Mat4& patientFromIndex, const std::string& path);
+
+// A hash of the contents of `files` (XXH3-128 of each file's bytes, combined in sorted order of
+// those digests so neither the paths nor their order matter), as 32 hex digits. Identifies the
+// data a store was built from (the store's provenance, octoray-batch's skip test). Throws
+// octoray::Error naming the file that cannot be read.
+std::string sourceContentHash(const std::vector<std::string>& files);
 
 // Checks a slab request against the volume; throws octoray::Error naming `path` if invalid.
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,

@@ -26,6 +26,9 @@ struct BuildOptions {
   // Auto picks UInt16 for integer-valued sources with unit HU, Float32 otherwise.
   enum class Format { Auto, UInt16, Float32 } format = Format::Auto;
   std::string provenanceJson = "{}";   // extra provenance (series UID, description, ...)
+  // sourceContentHash(source.info().sourceFiles), recorded as the provenance's
+  // source.contentHash when set: what octoray-batch compares to skip a store already built.
+  std::string sourceContentHash;
   std::function<void(int64_t slicesDone, int64_t slicesTotal)> progress;
   const std::atomic<bool>* cancel = nullptr;  // set to stop; the build throws BuildCancelled
 };
