@@ -20,6 +20,9 @@ packages=(
   # PACS tests: a real Orthanc with its DICOMweb plugin, started by the tests on the loopback
   # interface; openssl makes their self-signed certificate
   orthanc orthanc-dicomweb openssl
+  # batch tests: a one-node Slurm cluster (slurmctld, slurmd, munged) started by the tests on
+  # this machine with their own config and state (tests/batch/slurm_cluster.sh)
+  slurm-wlm munge
   # benchmarks: plots of bench/plot_accuracy.py
   python3-matplotlib
 )
