@@ -95,6 +95,32 @@ std::optional<gdcm::DataSet> groupMacro(const std::optional<gdcm::DataSet>& perF
   return std::nullopt;
 }
 
+// The modality LUT must be usable: a slope of 0 would turn every pixel into the intercept, a
+// non-finite slope or intercept every pixel into NaN or infinity. Such a file is refused (and
+// listed as skipped, naming the value), never read into a silently wrong volume.
+// RescaleSlope or RescaleIntercept: `fallback` when absent; a value that is present but not a
+// finite number ("NaN", "inf", junk) refuses the file instead of being replaced silently.
+double rescaleValue(const gdcm::DataSet& ds, const gdcm::Tag& tag, double fallback, const std::string& path,
+                    const char* name) {
+  const std::string text = stringValue(ds, tag);
+  if (text.find_first_not_of(" ") == std::string::npos) return fallback;
+  const auto value = numberValue(ds, tag);
+  if (!value) throw Error(path, fmt::format("{} '{}' is not a finite number", name, text));
+  return *value;
+}
+
+void checkRescale(const std::string& path, double slope, double intercept, int frame) {
+  const std::string where = frame < 0 ? "" : fmt::format(" (frame {})", frame + 1);
+  if (!std::isfinite(slope) || !std::isfinite(intercept)) {
+    throw Error(path, fmt::format("RescaleSlope {} / RescaleIntercept {}{} is not a finite number", slope,
+                                  intercept, where));
+  }
+  if (slope == 0) {
+    throw Error(path, fmt::format("RescaleSlope is 0{}: every pixel would read as the intercept {}", where,
+                                  intercept));
+  }
+}
+
 void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) {
   const auto shared = detail::firstItem(ds, kSharedGroups);
   const auto perFrame = detail::sequenceItems(ds, kPerFrameGroups);
@@ -128,9 +154,10 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
       }
     }
     if (auto transform = groupMacro(mine, shared, kPixelValueTransformSeq)) {
-      frame.rescaleSlope = numberValue(*transform, kRescaleSlope).value_or(1.0);
-      frame.rescaleIntercept = numberValue(*transform, kRescaleIntercept).value_or(0.0);
+      frame.rescaleSlope = rescaleValue(*transform, kRescaleSlope, 1.0, h.path, "RescaleSlope");
+      frame.rescaleIntercept = rescaleValue(*transform, kRescaleIntercept, 0.0, h.path, "RescaleIntercept");
     }
+    checkRescale(h.path, frame.rescaleSlope, frame.rescaleIntercept, static_cast<int>(h.frames.size()));
     h.frames.push_back(frame);
   }
 }
@@ -246,8 +273,9 @@ FileHeader readHeader(const std::string& path) {
     h.orientation = numberValues(ds, kOrientation);
     h.pixelSpacing = numberValues(ds, kPixelSpacing);
     const auto position = numberValues(ds, kPosition);
-    const double slope = numberValue(ds, kRescaleSlope).value_or(1.0);
-    const double intercept = numberValue(ds, kRescaleIntercept).value_or(0.0);
+    const double slope = rescaleValue(ds, kRescaleSlope, 1.0, path, "RescaleSlope");
+    const double intercept = rescaleValue(ds, kRescaleIntercept, 0.0, path, "RescaleIntercept");
+    checkRescale(path, slope, intercept, -1);
     const int instance = static_cast<int>(numberValue(ds, kInstanceNumber).value_or(0));
     if (!position || position->size() != 3) h.orientation.reset();
     // A legacy multi-frame image has one position for all frames: it is not a stack.
@@ -362,7 +390,26 @@ void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::p
     if (components.empty()) continue;
     std::string joined;
     for (const auto& c : components) joined += (joined.empty() ? "" : "/") + c;
+    // A record names a file inside the DICOMDIR's folder: plain names only, and no symbolic
+    // link leading out of the folder (a crafted record must not open /etc/passwd).
+    const bool plainNames = std::all_of(components.begin(), components.end(), [](const std::string& c) {
+      return !c.empty() && c != "." && c != ".." && c.find('/') == std::string::npos &&
+             c.find('\\') == std::string::npos;
+    });
+    if (!plainNames) {
+      scan.warnings.push_back(fmt::format("{}: record '{}' points outside the DICOMDIR's folder; ignored",
+                                          dirFile.string(), joined));
+      continue;
+    }
     const auto file = resolveReferencedFile(root, components);
+    if (file) {
+      const std::string inside = fs::weakly_canonical(root).string() + "/";
+      if (!fs::weakly_canonical(*file).string().starts_with(inside)) {
+        scan.warnings.push_back(fmt::format("{}: record '{}' leads outside the DICOMDIR's folder (a link); "
+                                            "ignored", dirFile.string(), joined));
+        continue;
+      }
+    }
     if (!file) {
       scan.warnings.push_back(fmt::format("{}: lists {} which does not exist", dirFile.string(),
                                           (root / joined).string()));
@@ -538,6 +585,39 @@ std::size_t defaultSeriesIndex(const DicomScan& scan, const std::string& path) {
                                   scan.series.size(), scan.skipped.size()));
   }
   return *best;
+}
+
+std::vector<std::string> filesLeftOut(const DicomScan& scan, std::size_t chosen) {
+  std::vector<std::string> warnings;
+  const DicomSeries& mine = scan.series.at(chosen);
+  auto names = [](const std::vector<std::string>& files) {
+    std::string out;
+    for (std::size_t i = 0; i < files.size() && i < 5; ++i) out += (i ? ", " : "") + files[i];
+    if (files.size() > 5) out += fmt::format(" and {} more", files.size() - 5);
+    return out;
+  };
+  for (std::size_t i = 0; i < scan.series.size(); ++i) {
+    const DicomSeries& other = scan.series[i];
+    if (i == chosen || other.seriesUid != mine.seriesUid) continue;
+    std::vector<std::string> files;
+    for (const auto& f : other.frames) {
+      if (files.empty() || files.back() != f.path) files.push_back(f.path);
+    }
+    warnings.push_back(fmt::format("{} image(s) of this series are not in the volume: they differ in "
+                                   "orientation, size or spacing (series table #{}): {}",
+                                   other.frames.size(), i, names(files)));
+  }
+  std::vector<std::string> unreadable;
+  for (const auto& s : scan.skipped) {
+    if (s.reason.find("DICOMDIR") != std::string::npos) continue;  // directories are not images
+    unreadable.push_back(fmt::format("{} ({})", s.path, s.reason));
+  }
+  if (!unreadable.empty()) {
+    warnings.push_back(fmt::format("{} file(s) could not be read; if they are slices of this series, the "
+                                   "volume lacks them: {}",
+                                   unreadable.size(), names(unreadable)));
+  }
+  return warnings;
 }
 
 std::size_t findSeries(const DicomScan& scan, const std::string& indexOrUid,

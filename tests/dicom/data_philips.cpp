@@ -6,6 +6,7 @@
 #include <gdcmAttribute.h>
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
+#include <gdcmWriter.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -366,6 +367,68 @@ TEST_F(PhilipsData, DicomdirFilesThatAreMissingAreReportedByName) {
     EXPECT_TRUE(named) << "no warning names the missing file " << id;
   }
   for (const std::string& w : scan().warnings) std::cout << "[scan warning] " << w << "\n";
+}
+
+// Rewrites the first record of `dicomdir` that names a file so that it names `fileId`
+// (components separated by '\\').
+void redirectFirstRecord(const fs::path& dicomdir, const std::string& fileId) {
+  gdcm::Reader reader;
+  reader.SetFileName(dicomdir.c_str());
+  ASSERT_TRUE(reader.Read());
+  gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+  const gdcm::Tag recordsTag(0x0004, 0x1220), fileIdTag(0x0004, 0x1500);
+  gdcm::DataElement records = ds.GetDataElement(recordsTag);
+  gdcm::SmartPointer<gdcm::SequenceOfItems> items = records.GetValueAsSQ();
+  ASSERT_TRUE(items);
+  bool done = false;
+  for (gdcm::SequenceOfItems::SizeType n = 1; n <= items->GetNumberOfItems() && !done; ++n) {
+    gdcm::DataSet& record = items->GetItem(n).GetNestedDataSet();
+    if (!record.FindDataElement(fileIdTag)) continue;
+    gdcm::DataElement id(fileIdTag);
+    id.SetVR(gdcm::VR::CS);
+    std::string value = fileId;
+    if (value.size() % 2) value += ' ';
+    id.SetByteValue(value.data(), static_cast<uint32_t>(value.size()));
+    record.Replace(id);
+    done = true;
+  }
+  ASSERT_TRUE(done);
+  // Lengths are recomputed on writing: the edited record no longer has its old length.
+  for (gdcm::SequenceOfItems::SizeType n = 1; n <= items->GetNumberOfItems(); ++n) {
+    items->GetItem(n).SetVLToUndefined();
+  }
+  items->SetLengthToUndefined();
+  records.SetValue(*items);
+  records.SetVLToUndefined();
+  ds.Replace(records);
+  gdcm::Writer writer;
+  writer.SetFileName(dicomdir.c_str());
+  writer.SetFile(reader.GetFile());
+  ASSERT_TRUE(writer.Write());
+}
+
+TEST(DicomdirConfinement, RecordsLeadingOutOfTheFolderAreIgnoredWithAWarning) {
+  OCTORAY_REQUIRE_PATH(test::philipsDir());
+  const fs::path dir = test::freshTempDir("dicomdir_escape");
+  fs::copy(test::philipsDir(), dir / "media", fs::copy_options::recursive);
+  // A real CT slice outside the media folder: what a crafted record would make us read.
+  fs::copy_file(test::philipsDir() / "S21570/S2020/I10", dir / "secret.dcm");
+  fs::create_directory_symlink(dir, dir / "media/link");
+  for (const std::string& id : {std::string("..\\secret.dcm"), std::string("link\\secret.dcm")}) {
+    SCOPED_TRACE(id);
+    fs::copy_file(test::philipsDir() / "DICOMDIR", dir / "media/DICOMDIR", fs::copy_options::overwrite_existing);
+    redirectFirstRecord(dir / "media/DICOMDIR", id);
+    const DicomScan scan = dicom::scanDicom(dir / "media/DICOMDIR");
+    for (const auto& series : scan.series) {
+      for (const auto& frame : series.frames) {
+        EXPECT_EQ(fs::weakly_canonical(frame.path).string().find("secret"), std::string::npos) << frame.path;
+      }
+    }
+    const bool warned = std::any_of(scan.warnings.begin(), scan.warnings.end(), [](const std::string& w) {
+      return w.find("outside the DICOMDIR's folder") != std::string::npos && w.find("secret.dcm") != std::string::npos;
+    });
+    EXPECT_TRUE(warned) << fmt::format("{}", fmt::join(scan.warnings, "\n"));
+  }
 }
 
 TEST_F(PhilipsData, DefaultSeriesIsTheFineAxialSeries) {

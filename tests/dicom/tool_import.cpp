@@ -237,6 +237,26 @@ TEST(ToolImport, StoreJsonSummary) {
 
 // ---- bad input ------------------------------------------------------------------------------
 
+// A file of the series that cannot be read is named in the warnings of every command that
+// builds the volume without it (text and --json).
+TEST(ToolImportBadInput, UnreadableFileOfTheSeriesIsNamed) {
+  const fs::path dir = writeSeries("left_out");
+  const fs::path cut = dir / "CT0006.dcm";
+  ASSERT_TRUE(fs::exists(cut));
+  fs::resize_file(cut, 300);
+  const fs::path outDir = test::freshTempDir("left_out_out");
+  const json store = parseJson(runImport({dir.string(), "-o", (outDir / "x.octoray").string(), "--json"}));
+  const json exported = parseJson(runImport({"--export", (outDir / "x.nii.gz").string(), dir.string(), "--json"}));
+  const json inspected = parseJson(runImport({"--inspect", dir.string(), "--json"}));
+  for (const json* j : {&store, &exported, &inspected}) {
+    EXPECT_NE((*j)["warnings"].dump().find(cut.string()), std::string::npos) << (*j)["warnings"].dump(1);
+  }
+  const ProcessResult text = runImport({dir.string(), "-o", (outDir / "y.octoray").string()});
+  EXPECT_EQ(text.exitCode, 0);
+  EXPECT_NE(text.out.find("could not be read"), std::string::npos) << text.out;
+  EXPECT_NE(text.out.find(cut.string()), std::string::npos) << text.out;
+}
+
 TEST(ToolImportBadInput, NonexistentPath) {
   const fs::path outDir = test::freshTempDir("out");
   const std::string missing = (outDir / "no-such-folder").string();

@@ -376,5 +376,51 @@ TEST(BadInputDicom, HugeSpacingOrPositionIsRefusedWhereTheStackIsFormed) {
   }
 }
 
+// One image whose orientation differs is split off into another part of the series; the
+// volume built from the main part names it.
+TEST(BadInputDicom, ImageSplitOffFromTheSeriesIsNamed) {
+  const auto dir = test::freshTempDir("bad_dicom_split");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 6;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path odd = written.slices()[3].path;
+  rewriteElement(odd, gdcm::Tag(0x0020, 0x0037), gdcm::VR::DS, "1\\0\\0\\0\\0\\1");
+  const dicom::DicomScan scan = dicom::scanDicom(dir);
+  ASSERT_EQ(scan.series.size(), 2u);
+  const std::size_t chosen = dicom::defaultSeriesIndex(scan, dir.string());
+  EXPECT_EQ(scan.series[chosen].frames.size(), 5u);
+  const std::vector<std::string> warnings = dicom::filesLeftOut(scan, chosen);
+  ASSERT_EQ(warnings.size(), 1u);
+  EXPECT_NE(warnings[0].find(odd.string()), std::string::npos) << warnings[0];
+  EXPECT_NE(warnings[0].find("differ in orientation"), std::string::npos) << warnings[0];
+}
+
+// RescaleSlope 0 turns every pixel into the intercept, NaN every pixel into NaN: the file is
+// refused by name (and the volume built without it says a slice is missing), never read as a
+// silently flat or NaN slice.
+TEST(BadInputDicom, UnusableRescaleRefusesTheFileByName) {
+  for (const auto& [tag, value, mention] :
+       {std::tuple{gdcm::Tag(0x0028, 0x1053), std::string("0"), std::string("RescaleSlope is 0")},
+        std::tuple{gdcm::Tag(0x0028, 0x1053), std::string("NaN"), std::string("not a finite number")},
+        std::tuple{gdcm::Tag(0x0028, 0x1052), std::string("inf"), std::string("not a finite number")}}) {
+    SCOPED_TRACE(value);
+    const auto dir = test::freshTempDir("bad_dicom_rescale");
+    dicom::SyntheticSeriesSpec spec;
+    spec.sliceCount = 6;
+    const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+    const fs::path damaged = written.slices()[2].path;
+    rewriteElement(damaged, tag, gdcm::VR::DS, value);
+    const dicom::DicomScan scan = dicom::scanDicom(dir);
+    ASSERT_EQ(scan.skipped.size(), 1u);
+    EXPECT_EQ(scan.skipped[0].path, damaged.string());
+    EXPECT_NE(scan.skipped[0].reason.find(mention), std::string::npos) << scan.skipped[0].reason;
+    ASSERT_EQ(scan.series.size(), 1u);
+    const auto source = dicom::openDicomSeries(scan.series[0], {});
+    const auto& warnings = source->info().warnings;
+    EXPECT_TRUE(std::any_of(warnings.begin(), warnings.end(),
+                            [](const std::string& w) { return w.find("missing") != std::string::npos; }));
+  }
+}
+
 }  // namespace
 }  // namespace octoray

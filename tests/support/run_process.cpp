@@ -6,13 +6,25 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <algorithm>
 #include <cerrno>
+#include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <stdexcept>
 
 extern char** environ;
 
 namespace octoray::test {
+
+int toolTimeoutSeconds() {
+  const char* text = std::getenv("OCTORAY_TEST_TOOL_TIMEOUT");
+  const int seconds = text ? std::atoi(text) : 0;
+  return seconds > 0 ? seconds : 300;
+}
 
 ProcessResult runProcess(const std::vector<std::string>& argv) {
   int outPipe[2], errPipe[2];
@@ -43,11 +55,27 @@ ProcessResult runProcess(const std::vector<std::string>& argv) {
   pollfd fds[2] = {{outPipe[0], POLLIN, 0}, {errPipe[0], POLLIN, 0}};
   std::string* sinks[2] = {&result.out, &result.err};
   int open = 2;
+  // A hang fails the test instead of stalling the suite: the child is killed at the deadline.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(toolTimeoutSeconds());
   while (open > 0) {
-    if (::poll(fds, 2, -1) < 0) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) {
+      ::kill(pid, SIGKILL);
+      for (auto& fd : fds) {
+        if (fd.fd >= 0) ::close(fd.fd);
+        fd.fd = -1;
+      }
+      result.timedOut = true;
+      result.err += "\n[test] killed after " + std::to_string(toolTimeoutSeconds()) + " s: the program hung\n";
+      ADD_FAILURE() << argv[0] << " did not finish within " << toolTimeoutSeconds() << " s (a hang)";
+      break;
+    }
+    const int ready = ::poll(fds, 2, static_cast<int>(std::min<long long>(left.count(), 1000)));
+    if (ready < 0) {
       if (errno == EINTR) continue;
       break;
     }
+    if (ready == 0) continue;
     for (int i = 0; i < 2; ++i) {
       if (fds[i].fd < 0 || fds[i].revents == 0) continue;
       char buffer[4096];

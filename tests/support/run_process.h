@@ -12,9 +12,15 @@ struct ProcessResult {
   int signal = 0;     // the signal that ended the child, or 0
   std::string out;    // everything written to stdout
   std::string err;    // everything written to stderr
+  bool timedOut = false;  // killed at the deadline (the test has failed)
 };
 
-// Runs argv[0] (a path) with the arguments argv[1..] and waits for it. stdin is /dev/null.
+// Seconds a program may run before runProcess kills it and fails the test:
+// $OCTORAY_TEST_TOOL_TIMEOUT, else 300 (sanitizer builds are slow; nothing takes a minute).
+int toolTimeoutSeconds();
+
+// Runs argv[0] (a path) with the arguments argv[1..] and waits for it, at most
+// toolTimeoutSeconds(). stdin is /dev/null.
 ProcessResult runProcess(const std::vector<std::string>& argv);
 
 }  // namespace octoray::test

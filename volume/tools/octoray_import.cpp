@@ -220,6 +220,17 @@ std::unique_ptr<VolumeSource> openInput(const Arguments& a, std::optional<dicom:
   return dicom::openDicomSeries(scan->series[*seriesIndex], stack);
 }
 
+// The source's warnings and, for a DICOM series, every file of the scan left out of the volume
+// (split off into another part, or unreadable), by name.
+std::vector<std::string> allWarnings(const VolumeInfo& info, const std::optional<dicom::DicomScan>& scan,
+                                     const std::optional<std::size_t>& index) {
+  std::vector<std::string> warnings = info.warnings;
+  if (scan && index) {
+    for (auto& w : dicom::filesLeftOut(*scan, *index)) warnings.push_back(std::move(w));
+  }
+  return warnings;
+}
+
 json inspectJson(const Arguments& a) {
   std::optional<dicom::DicomScan> scan;
   std::optional<std::size_t> index;
@@ -263,7 +274,7 @@ json inspectJson(const Arguments& a) {
   j["integerValues"] = info.integerValues;
   j["valueRange"] = std::isfinite(lo) ? json{{"min", lo}, {"max", hi}} : json(nullptr);
   j["nonFiniteSamples"] = nonFinite;
-  j["warnings"] = info.warnings;
+  j["warnings"] = allWarnings(info, scan, index);
   j["skipped"] = json::array();
   if (scan) {
     j["series"] = seriesJson(scan->series[*index], *index, true);
@@ -350,7 +361,7 @@ int buildStoreFile(const Arguments& a) {
               {"seconds", report.seconds}, {"mvoxelsPerSecond", mvoxPerS},
               {"peakRssMiB", peakRssMiB()}, {"clampedSamples", report.clampedSamples},
               {"sampleFormat", report.sampleFormat == volume::SampleFormat::UInt16 ? "uint16" : "float32"},
-              {"warnings", info.warnings}};
+              {"warnings", allWarnings(info, scan, index)}};
     std::cout << j.dump(2) << "\n";
   } else {
     fmt::print("wrote {}: {} x {} x {} voxels, {} bricks in {} levels ({:.1f}% constant), "
@@ -361,7 +372,7 @@ int buildStoreFile(const Arguments& a) {
     if (report.clampedSamples > 0) {
       fmt::print("warning: {} samples outside the 16-bit range were clamped\n", report.clampedSamples);
     }
-    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
+    for (const auto& w : allWarnings(info, scan, index)) fmt::print("warning: {}\n", w);
   }
   return 0;
 }
@@ -407,7 +418,7 @@ int exportVolume(const Arguments& a) {
   if (a.json) {
     json j = {{"tool", "octoray-import"}, {"schemaVersion", kJsonSchemaVersion},
               {"path", a.path}, {"output", a.exportPath}, {"dimensions", info.dims},
-              {"warnings", info.warnings}};
+              {"warnings", allWarnings(info, scan, index)}};
     if (vdb) {
       j["vdbThreshold"] = vdbOptions.thresholdHu;
       j["activeVoxels"] = vdb->activeVoxels;
@@ -421,7 +432,7 @@ int exportVolume(const Arguments& a) {
                  vdb->activeVoxels, 100.0 * double(vdb->activeVoxels) / double(info.sampleCount()),
                  vdbOptions.thresholdHu, info.unit, double(vdb->bytesOnDisk) / 1048576.0);
     }
-    for (const auto& w : info.warnings) fmt::print("warning: {}\n", w);
+    for (const auto& w : allWarnings(info, scan, index)) fmt::print("warning: {}\n", w);
   }
   return 0;
 }

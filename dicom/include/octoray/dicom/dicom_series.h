@@ -98,6 +98,12 @@ DicomScan scanDicomFiles(std::vector<std::string> files, const ScanOptions& opti
 // octoray::Error naming `path` when there is no volumetric series.
 std::size_t defaultSeriesIndex(const DicomScan& scan, const std::string& path);
 
+// Warnings naming every file of the scan that could belong to series `chosen` but is not in
+// its volume: images of the same SeriesInstanceUID split off into another part (different
+// orientation, size or spacing), and files that could not be read at all (they may be its
+// slices). Empty when nothing is left out. What --inspect, --export, -o and the viewer show.
+std::vector<std::string> filesLeftOut(const DicomScan& scan, std::size_t chosen);
+
 // Finds a series by 0-based table index ("2") or SeriesInstanceUID; throws when absent.
 std::size_t findSeries(const DicomScan& scan, const std::string& indexOrUid,
                        const std::string& path);
