@@ -13,6 +13,8 @@ packages=(
   nlohmann-json3-dev libcli11-dev libfmt-dev libexpat1-dev
   # PACS: DICOMweb over libcurl, DIMSE through DCMTK's network library; OpenVDB in and out
   libcurl4-openssl-dev libdcmtk-dev libopenvdb-dev libboost-iostreams-dev
+  # batch: HMAC-SHA256 of patient IDs in output paths
+  libssl-dev
   # rendering: GL loader, headless EGL on Mesa (llvmpipe without a GPU), GLFW windows, Xvfb for window tests
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libgl-dev libimgui-dev libstb-dev fonts-dejavu-core xvfb xauth
   # tests: GoogleTest, and independent references for DICOM decoding and conversion

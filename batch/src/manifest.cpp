@@ -58,13 +58,26 @@ fs::path manifestFolder(const fs::path& planPath) {
 }
 
 std::string writerName() {
-  const char* job = std::getenv("SLURM_ARRAY_JOB_ID");
-  const char* task = std::getenv("SLURM_ARRAY_TASK_ID");
-  if (job && task && *job && *task) return fmt::format("slurm-{}_{}", job, task);
-  if (const char* plain = std::getenv("SLURM_JOB_ID"); plain && *plain) return fmt::format("slurm-{}", plain);
   char host[256] = {};
   ::gethostname(host, sizeof host - 1);
-  return fmt::format("local-{}-{}", host, ::getpid());
+  auto env = [](const char* name) {
+    const char* v = std::getenv(name);
+    return std::string(v ? v : "");
+  };
+  // Unique per process even when Slurm runs several (srun -n), requeues a task, or a
+  // container reuses PIDs: host and pid are always part of the name.
+  std::string slurm;
+  if (!env("SLURM_ARRAY_JOB_ID").empty() && !env("SLURM_ARRAY_TASK_ID").empty()) {
+    slurm = fmt::format("slurm-{}_{}-", env("SLURM_ARRAY_JOB_ID"), env("SLURM_ARRAY_TASK_ID"));
+  } else if (!env("SLURM_JOB_ID").empty()) {
+    slurm = fmt::format("slurm-{}-", env("SLURM_JOB_ID"));
+  }
+  if (!slurm.empty() && !env("SLURM_RESTART_COUNT").empty()) slurm += "r" + env("SLURM_RESTART_COUNT") + "-";
+  std::string name = (slurm.empty() ? "local-" : slurm) + fmt::format("{}-{}", host, ::getpid());
+  for (char& c : name) {
+    if (c == '/' || c == ' ') c = '_';
+  }
+  return name;
 }
 
 std::string isoTimeNow() {
@@ -83,8 +96,14 @@ ManifestWriter::ManifestWriter(const fs::path& folder, const std::string& name) 
   fs::create_directories(folder, ec);
   if (ec) throw Error(folder.string(), "cannot create the manifest folder: " + ec.message());
   path_ = folder / (name + ".jsonl");
-  fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  fd_ = ::open(path_.c_str(), O_RDWR | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (fd_ < 0) throw Error(path_.string(), std::string("cannot open the manifest: ") + std::strerror(errno));
+  // A line cut by a kill stays cut: the next record starts on a line of its own.
+  const off_t size = ::lseek(fd_, 0, SEEK_END);
+  char last = '\n';
+  if (size > 0 && ::pread(fd_, &last, 1, size - 1) == 1 && last != '\n') {
+    if (::write(fd_, "\n", 1) != 1) throw Error(path_.string(), "cannot append to the manifest");
+  }
 }
 
 ManifestWriter::~ManifestWriter() {
@@ -94,7 +113,7 @@ ManifestWriter::~ManifestWriter() {
 void ManifestWriter::append(Record record) {
   record.worker = name_;
   record.finished = isoTimeNow();
-  const std::string line = record.toJson().dump() + "\n";
+  const std::string line = dumpJson(record.toJson()) + "\n";
   // One write of the whole line: O_APPEND puts it at the end in one piece; a kill can only cut
   // the last line, which readers then ignore.
   const ssize_t n = ::write(fd_, line.data(), line.size());
@@ -129,7 +148,8 @@ ManifestState readManifest(const fs::path& planPath, const Plan& plan) {
         continue;
       }
       if (r.item < 0 || r.item >= static_cast<int64_t>(plan.items.size()) ||
-          r.contentHash != plan.items[static_cast<std::size_t>(r.item)].contentHash) {
+          r.contentHash != plan.items[static_cast<std::size_t>(r.item)].contentHash ||
+          r.output != plan.items[static_cast<std::size_t>(r.item)].output) {
         ++state.staleRecords;
         continue;
       }

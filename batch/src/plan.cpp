@@ -12,7 +12,8 @@
 
 #include <fmt/format.h>
 #include <tbb/parallel_for.h>
-#include <xxhash.h>
+#include <openssl/evp.h>
+#include <openssl/hmac.h>
 
 #include "octoray/core/atomic_file.h"
 #include "octoray/core/error.h"
@@ -258,8 +259,15 @@ std::string sanitizeComponent(const std::string& value) {
 }
 
 std::string patientIdHash(const std::string& patientId, const std::string& salt) {
-  const std::string keyed = "octoray-patient-id\n" + salt + "\n" + patientId;
-  return fmt::format("{:016x}", XXH3_64bits(keyed.data(), keyed.size()));
+  // HMAC-SHA256 keyed with the salt (a fixed key without one), first 8 bytes as hex.
+  const std::string key = salt.empty() ? std::string("octoray-patient-id") : salt;
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  HMAC(EVP_sha256(), key.data(), static_cast<int>(key.size()),
+       reinterpret_cast<const unsigned char*>(patientId.data()), patientId.size(), digest, &length);
+  std::string hex;
+  for (unsigned int i = 0; i < 8 && i < length; ++i) hex += fmt::format("{:02x}", digest[i]);
+  return hex;
 }
 
 std::string expandTemplate(const std::string& outputTemplate,
@@ -442,6 +450,10 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
   return c.plan;
 }
 
+std::string dumpJson(const json& j, int indent) {
+  return j.dump(indent, ' ', false, json::error_handler_t::replace);
+}
+
 json toJson(const WorkItem& it) {
   return {{"index", it.index}, {"kind", it.kind}, {"path", it.path},
           {"seriesUid", it.seriesUid}, {"seriesNumber", it.seriesNumber},
@@ -479,7 +491,24 @@ WorkItem itemFromJson(const json& e, const std::string& path) {
       throw Error(path, fmt::format("item {}: no files or no output", it.index));
     }
     for (int64_t d : it.dims) {
-      if (d <= 0) throw Error(path, fmt::format("item {}: dimensions must be positive", it.index));
+      if (d <= 0 || d > (int64_t{1} << 24)) {
+        throw Error(path, fmt::format("item {}: dimensions must be in 1..16777216", it.index));
+      }
+    }
+    if (it.dims[0] * it.dims[1] > (int64_t{1} << 40) / it.dims[2]) {
+      throw Error(path, fmt::format("item {}: more than 2^40 voxels", it.index));
+    }
+    // The plan names where the runner writes: an absolute .octoray path, nothing else.
+    const fs::path out(it.output);
+    if (!out.is_absolute() || out.extension() != ".octoray" || out.lexically_normal() != out) {
+      throw Error(path, fmt::format("item {}: output '{}' is not an absolute, normalised .octoray path",
+                                    it.index, it.output));
+    }
+    for (const auto& f : it.files) {
+      const fs::path rel(f);
+      if (f.empty() || rel.is_absolute() || rel.lexically_normal().string().starts_with("..")) {
+        throw Error(path, fmt::format("item {}: file '{}' is not inside the item's folder", it.index, f));
+      }
     }
     return it;
   } catch (const json::exception& x) {
@@ -553,7 +582,7 @@ Plan planFromJson(const json& j, const std::string& path) {
 }
 
 void writePlan(const Plan& plan, const fs::path& path) {
-  writeFileAtomically(path, toJson(plan).dump(1) + "\n");
+  writeFileAtomically(path, dumpJson(toJson(plan), 1) + "\n");
 }
 
 Plan readPlan(const fs::path& path) {

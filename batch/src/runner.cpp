@@ -51,6 +51,17 @@ uint64_t memAvailableBytes() {
   return uint64_t{4} << 30;  // not Linux: assume a small machine
 }
 
+// The memory this process's cgroup may still use (a container's or a Slurm job's limit), or
+// nothing when unlimited or unknown.
+std::optional<uint64_t> cgroupRoomBytes() {
+  std::ifstream maxFile("/sys/fs/cgroup/memory.max"), currentFile("/sys/fs/cgroup/memory.current");
+  std::string max;
+  uint64_t current = 0;
+  if (!(maxFile >> max) || max == "max" || !(currentFile >> current)) return std::nullopt;
+  const uint64_t limit = std::strtoull(max.c_str(), nullptr, 10);
+  return limit > current ? limit - current : 0;
+}
+
 // The last lines of a worker's output: what a crash message shows.
 std::string tail(const std::string& text, std::size_t lines) {
   std::vector<std::string> kept;
@@ -87,6 +98,8 @@ class WorkerProcess {
   struct Outcome {
     std::optional<Record> record;  // absent: the worker died before printing one
     std::string output;            // what it printed for this item besides the record
+    bool broken = false;           // it printed a record that does not parse: replace it
+    bool notSent = false;          // the item never reached it (it had died before)
   };
   struct Exit {
     int code = -1;
@@ -150,7 +163,10 @@ class WorkerProcess {
     while (written < line.size()) {
       const ssize_t n = ::write(input_, line.data() + written, line.size() - written);
       if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) return outcome;  // the worker is gone: reap() says how
+      if (n <= 0) {  // the worker is gone: reap() says how
+        outcome.notSent = written == 0;
+        return outcome;
+      }
       written += static_cast<std::size_t>(n);
     }
     char* text = nullptr;
@@ -159,12 +175,15 @@ class WorkerProcess {
     while ((length = ::getline(&text, &capacity, output_)) >= 0) {
       std::string got(text, static_cast<std::size_t>(length));
       if (!got.empty() && got.back() == '\n') got.pop_back();
-      if (got.starts_with(kRecordPrefix)) {
+      // The record may follow a message that did not end its line.
+      const std::size_t at = got.find(kRecordPrefix);
+      if (at != std::string::npos) {
+        outcome.output += got.substr(0, at);
         try {
-          outcome.record = Record::fromJson(json::parse(got.substr(std::string(kRecordPrefix).size())));
+          outcome.record = Record::fromJson(json::parse(got.substr(at + std::string(kRecordPrefix).size())));
         } catch (const json::exception& e) {
           outcome.output += std::string("unreadable record: ") + e.what() + "\n";
-          continue;
+          outcome.broken = true;
         }
         break;
       }
@@ -203,6 +222,7 @@ class WorkerProcess {
 Resources decideResources(int jobs, uint64_t budgetBytes) {
   Resources r;
   r.availableBytes = memAvailableBytes();
+  if (const auto room = cgroupRoomBytes()) r.availableBytes = std::min(r.availableBytes, *room);
   const uint64_t usable = r.availableBytes / 10 * 8;
   cpu_set_t allowed;
   CPU_ZERO(&allowed);
@@ -345,7 +365,16 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
     return r;
   };
 
-  auto work = [&] {
+  // What stops the whole run (the manifest cannot be written, ...) is thrown again after every
+  // thread has stopped; the other threads stop starting items.
+  std::exception_ptr firstError;
+  std::atomic<bool> abandon{false};
+
+  const std::vector<std::string> workerArgv = {
+      options.workerExecutable, "worker", "--memory-budget",
+      std::to_string(std::max<uint64_t>(1, options.resources.memoryBudgetBytes / kMiB)), "--parent",
+      std::to_string(::getpid()), "--threads", std::to_string(options.resources.threadsPerWorker)};
+  auto workLoop = [&] {
     // One worker process per thread, kept for item after item (starting one loads every
     // library and its GDCM vetters: 0.3-0.5 s of CPU); a new one after a crash.
     std::unique_ptr<WorkerProcess> worker;
@@ -358,6 +387,7 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
       const std::size_t k = next.fetch_add(1);
       if (k >= items.size()) break;
       const WorkItem& item = plan.items[static_cast<std::size_t>(items[k])];
+      if (abandon.load()) break;
       if (options.cancel && options.cancel->load()) {
         std::lock_guard lock(mutex);
         ++summary.interrupted;
@@ -378,18 +408,15 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
         r.status = "done";
         r.contentHash = item.contentHash;
         r.output = item.output;
-        r.bytes = fs::file_size(item.output);
+        std::error_code sizeError;
+        r.bytes = fs::file_size(item.output, sizeError);
         r.note = "found complete";
         finish(r, item.voxels(), false);
         continue;
       }
       if (!worker) {
         try {
-          worker = std::make_unique<WorkerProcess>(std::vector<std::string>{
-              options.workerExecutable, "worker", "--memory-budget",
-              std::to_string(std::max<uint64_t>(1, options.resources.memoryBudgetBytes / kMiB)),
-              "--parent", std::to_string(::getpid()), "--threads",
-              std::to_string(options.resources.threadsPerWorker)});
+          worker = std::make_unique<WorkerProcess>(workerArgv);
         } catch (const Error& e) {
           finish(failure(item, e.what()), item.voxels(), false);
           continue;
@@ -398,9 +425,24 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
         children.insert(worker->pid());
         if (options.cancel && options.cancel->load()) ::kill(worker->pid(), SIGTERM);
       }
-      WorkerProcess::Outcome outcome = worker->build(toJson(item).dump());
+      WorkerProcess::Outcome outcome = worker->build(dumpJson(toJson(item)));
+      if (!outcome.record && outcome.notSent) {
+        // The worker had died before this item reached it (it is not this item's fault): once
+        // more on a fresh one.
+        forget();
+        worker->reap();
+        worker.reset();
+        worker = std::make_unique<WorkerProcess>(workerArgv);
+        {
+          std::lock_guard lock(childrenMutex);
+          children.insert(worker->pid());
+        }
+        outcome = worker->build(dumpJson(toJson(item)));
+      }
       if (!outcome.record) {
-        // The worker died: cancelled, or crashed on this item.
+        // The worker died (cancelled, or crashed on this item), or printed a record that does
+        // not parse: it is replaced.
+        if (outcome.broken) ::kill(worker->pid(), SIGKILL);
         forget();
         const WorkerProcess::Exit exit = worker->reap();
         worker.reset();
@@ -427,6 +469,15 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
       worker->reap();
     }
   };
+  auto work = [&] {
+    try {
+      workLoop();
+    } catch (...) {
+      std::lock_guard lock(mutex);
+      if (!firstError) firstError = std::current_exception();
+      abandon = true;
+    }
+  };
 
   std::vector<std::thread> threads;
   const int jobs = std::max(1, std::min<int>(options.resources.jobs, static_cast<int>(items.size())));
@@ -448,6 +499,7 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
   for (auto& t : threads) t.join();
   allDone = true;
   watcher.join();
+  if (firstError) std::rethrow_exception(firstError);
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::sort(summary.failures.begin(), summary.failures.end(),
             [](const Record& a, const Record& b) { return a.item < b.item; });

@@ -62,6 +62,14 @@ std::string sbatchScript(const std::filesystem::path& planPath,
   checkValue(options.timeLimit, "--time");
   checkValue(options.memory, "--mem");
   checkValue(options.jobName, "--job-name");
+  // #SBATCH lines are not shell: the log path cannot be quoted, and '%' is Slurm's pattern.
+  for (const auto& [path, what] : {std::pair{planPath.string(), "the plan's path"},
+                                   std::pair{logs.string(), "the log folder's path"}}) {
+    if (path.find_first_of(" \t\n\r%#") != std::string::npos) {
+      throw Error(path, fmt::format("{} holds a space, '%' or '#', which an sbatch script cannot carry: "
+                                    "move the plan to a plainer path", what));
+    }
+  }
   const uint64_t mib = uint64_t{1} << 20;
   const std::string memory =
       options.memory.empty()

@@ -106,11 +106,11 @@ int planCommand(const PlanArgs& a) {
   bar.finish();
   writePlan(plan, planPath);
   if (a.json) {
-    std::cout << json{{"tool", "octoray-batch"}, {"command", "plan"}, {"plan", planPath.string()},
+    std::cout << dumpJson(json{{"tool", "octoray-batch"}, {"command", "plan"}, {"plan", planPath.string()},
                       {"items", plan.items.size()}, {"totalVoxels", plan.totalVoxels()},
                       {"skipped", plan.skipped.size()}, {"unreadableFiles", plan.unreadableFiles.size()},
                       {"warnings", plan.warnings}}
-                     .dump(2)
+                     , 2)
               << "\n";
     return 0;
   }
@@ -129,6 +129,10 @@ int planCommand(const PlanArgs& a) {
     fmt::print("{} files are no image (listed in the plan's \"unreadableFiles\")\n", plan.unreadableFiles.size());
   }
   for (const auto& w : plan.warnings) fmt::print("warning: {}\n", w);
+  if (a.idSalt.empty() && a.outputTemplate.find("{PatientID-hash}") != std::string::npos) {
+    fmt::print("note: no --id-salt: folder names hash patient IDs with a public key, so IDs can be "
+               "recovered by hashing guesses; give a private salt for data leaving the site\n");
+  }
   return 0;
 }
 
@@ -174,6 +178,10 @@ std::vector<int64_t> selectItems(const Selection& s, const Plan& plan, const Man
       ends = {std::stoll(s.range.substr(0, colon)), std::stoll(s.range.substr(colon + 1))};
     } catch (const std::exception&) {
       throw Error("", fmt::format("--range '{}': give A:B (items A to B-1)", s.range));
+    }
+    const auto count = static_cast<int64_t>(plan.items.size());
+    if (ends[0] < 0 || ends[1] > count || ends[0] >= ends[1]) {
+      throw Error("", fmt::format("--range {}: the plan has items 0..{}", s.range, count - 1));
     }
     for (int64_t i = ends[0]; i < ends[1]; ++i) out.push_back(i);
   } else if (!s.items.empty()) {
@@ -246,7 +254,7 @@ int runCommand(const RunArgs& a) {
   if (a.json) {
     json failures = json::array();
     for (const auto& r : s.failures) failures.push_back(r.toJson());
-    std::cout << json{{"tool", "octoray-batch"}, {"command", "run"}, {"plan", planPath.string()},
+    std::cout << dumpJson(json{{"tool", "octoray-batch"}, {"command", "run"}, {"plan", planPath.string()},
                       {"selected", s.selected}, {"built", s.built}, {"upToDate", s.upToDate},
                       {"failed", s.failed}, {"interrupted", s.interrupted},
                       {"seconds", s.seconds}, {"voxelsBuilt", s.voxelsBuilt},
@@ -254,7 +262,7 @@ int runCommand(const RunArgs& a) {
                       {"threadsPerWorker", options.resources.threadsPerWorker},
                       {"memoryBudgetMiB", options.resources.memoryBudgetBytes / kMiB},
                       {"manifest", s.manifest.string()}, {"failures", failures}}
-                     .dump(2)
+                     , 2)
               << "\n";
   } else {
     fmt::print("{} built, {} already up to date, {} failed{} in {:.2f} s ({:.1f} Mvoxels/s)\n", s.built,
@@ -287,6 +295,8 @@ int workerCommand(uint64_t memoryBudgetMiB, int64_t parent) {
   // Stop (and remove the temporary store) when the run that started us dies, even by SIGKILL.
   ::prctl(PR_SET_PDEATHSIG, SIGTERM);
   catchStopSignals();
+  // A run killed while we write must not kill us before the temporary store is removed.
+  std::signal(SIGPIPE, SIG_IGN);
   if (parent > 0 && ::getppid() != static_cast<pid_t>(parent)) return 128 + SIGTERM;
   for (std::string line; std::getline(std::cin, line);) {
     if (line.empty()) continue;
@@ -297,7 +307,8 @@ int workerCommand(uint64_t memoryBudgetMiB, int64_t parent) {
     try {
       Record r = buildItem(item, memoryBudgetMiB * kMiB, &gStop);
       r.peakRssMiB = peakMemoryMiB();
-      std::cout << kRecordPrefix << r.toJson().dump() << std::endl;
+      std::fflush(stderr);
+      std::cout << "\n" << kRecordPrefix << dumpJson(r.toJson()) << std::endl;
     } catch (const volume::BuildCancelled&) {
       return 128 + (gStopSignal.load() != 0 ? gStopSignal.load() : SIGTERM);
     }
@@ -343,14 +354,14 @@ int statusCommand(const std::string& planArg, bool asJson) {
   }
   const double rate = seconds > 0 ? static_cast<double>(voxels) / seconds / 1e6 : 0;
   if (asJson) {
-    std::cout << json{{"tool", "octoray-batch"}, {"command", "status"}, {"plan", planPath.string()},
+    std::cout << dumpJson(json{{"tool", "octoray-batch"}, {"command", "status"}, {"plan", planPath.string()},
                       {"items", plan.items.size()}, {"done", done}, {"failed", failed},
                       {"pending", pending}, {"bytesOnDisk", bytes},
                       {"mvoxelsPerSecondPerWorker", rate}, {"medianPeakRssMiB", median(peaks)},
                       {"manifestFiles", state.files}, {"records", state.records},
                       {"tornLines", state.tornLines}, {"staleRecords", state.staleRecords},
                       {"failures", failures}}
-                     .dump(2)
+                     , 2)
               << "\n";
     return 0;
   }
@@ -426,10 +437,10 @@ int validateCommand(const std::string& planArg, int jobs, bool asJson) {
     problems.push_back({{"item", i}, {"output", plan.items[i].output}, {"problem", outcomes[i].problem}});
   }
   if (asJson) {
-    std::cout << json{{"tool", "octoray-batch"}, {"command", "validate"}, {"plan", planPath.string()},
+    std::cout << dumpJson(json{{"tool", "octoray-batch"}, {"command", "validate"}, {"plan", planPath.string()},
                       {"items", plan.items.size()}, {"passed", passed}, {"failed", failed},
                       {"notBuilt", missing}, {"problems", problems}}
-                     .dump(2)
+                     , 2)
               << "\n";
   } else {
     fmt::print("{} of {} stores passed every check; {} failed, {} not built\n", passed, plan.items.size(),
@@ -459,7 +470,8 @@ int slurmCommand(SlurmArgs a) {
   std::vector<double> rates;
   for (const auto& it : plan.items) {
     const auto r = state.latest.find(it.index);
-    const std::string status = r == state.latest.end() ? "pending" : r->second.status;
+    std::string status = r == state.latest.end() ? "pending" : r->second.status;
+    if (status == "done" && !storeIsUpToDate(it)) status = "pending";  // removed or replaced since
     if (status == "done" && r->second.mvoxelsPerSecond > 0) rates.push_back(r->second.mvoxelsPerSecond);
     if (a.onlyFailed ? status == "failed" : status != "done") items.push_back(it.index);
   }
@@ -501,10 +513,10 @@ int slurmCommand(SlurmArgs a) {
   const std::string last = out.substr(out.find_last_of('\n') == std::string::npos ? 0 : out.find_last_of('\n') + 1);
   const std::string jobId = last.substr(0, last.find(';'));
   if (a.json) {
-    std::cout << json{{"tool", "octoray-batch"}, {"command", "slurm"}, {"plan", planPath.string()},
+    std::cout << dumpJson(json{{"tool", "octoray-batch"}, {"command", "slurm"}, {"plan", planPath.string()},
                       {"jobId", jobId}, {"script", scriptPath.string()}, {"items", items.size()},
                       {"arrayTasks", groups.size()}, {"logs", logs.string()}}
-                     .dump(2)
+                     , 2)
               << "\n";
   } else {
     fmt::print("submitted job {}: {} items in {} array tasks ({})\n", jobId, items.size(), groups.size(),

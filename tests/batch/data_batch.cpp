@@ -152,7 +152,8 @@ TEST_F(BatchArchiveTest, PlansRunsAndRerunsTheArchive) {
 
   // No patient name or ID in the plan, the manifest, the Slurm script or the output paths.
   const ToolRun script = runTool("octoray-batch", {"slurm", planPath_.string(), "--dry-run"});
-  std::string everything = readText(planPath_) + script.out + status.out + run.out;
+  std::string everything = readText(planPath_) + script.out + status.out + run.out + run.err +
+                           planned.out + planned.err + again.out + validated.out;
   for (const auto& e : fs::directory_iterator(planPath_.parent_path() / "plan.manifest")) everything += readText(e.path());
   for (const auto& e : fs::recursive_directory_iterator(dir_ / "work/stores")) everything += e.path().string() + "\n";
   for (const std::string& id : archive_.identifiers) {
@@ -205,6 +206,7 @@ TEST_F(BatchArchiveTest, RunsKilledAtRandomMomentsResumeToCompleteStores) {
   std::mt19937 random(seed);
   std::uniform_int_distribution<int> delayMs(50, 1500);
   SCOPED_TRACE("kill delays from seed " + std::to_string(seed));
+  int killedWhileRunning = 0;
   for (int round = 0; round < 5; ++round) {
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
@@ -218,9 +220,12 @@ TEST_F(BatchArchiveTest, RunsKilledAtRandomMomentsResumeToCompleteStores) {
     ASSERT_EQ(posix_spawn(&pid, tool.c_str(), &actions, nullptr, argv.data(), environ), 0);
     posix_spawn_file_actions_destroy(&actions);
     std::this_thread::sleep_for(std::chrono::milliseconds(delayMs(random)));
-    ::kill(pid, SIGKILL);
     int status = 0;
-    ::waitpid(pid, &status, 0);
+    if (::waitpid(pid, &status, WNOHANG) == 0) {
+      ++killedWhileRunning;
+      ::kill(pid, SIGKILL);
+      ::waitpid(pid, &status, 0);
+    }
     // The workers notice their parent's death and remove their temporaries.
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
     while (partialFiles(dir_ / "work") > 0 && std::chrono::steady_clock::now() < deadline) {
@@ -234,6 +239,7 @@ TEST_F(BatchArchiveTest, RunsKilledAtRandomMomentsResumeToCompleteStores) {
       }
     }
   }
+  EXPECT_GE(killedWhileRunning, 1) << "no round killed a run that was still building";
   const ToolRun finish = runTool("octoray-batch", {"run", planPath_.string(), "--json"});
   ASSERT_EQ(finish.exitCode, 0) << finish.out << finish.err;
   const json status = runTool("octoray-batch", {"status", planPath_.string(), "--json"}).json();

@@ -95,8 +95,13 @@ std::string expandTemplate(const std::string& outputTemplate,
 // nothing is left.
 std::string sanitizeComponent(const std::string& value);
 
-// A keyed hash of a patient ID (16 hex digits).
+// A keyed hash of a patient ID: HMAC-SHA256 with `salt` as the key (a fixed, public key when
+// empty: then anyone can hash candidate IDs), its first 8 bytes as 16 hex digits.
 std::string patientIdHash(const std::string& patientId, const std::string& salt);
+
+// JSON text of `j` with any invalid UTF-8 (a header in Latin-1, a file name in another
+// encoding) replaced by U+FFFD instead of an exception.
+std::string dumpJson(const nlohmann::json& j, int indent = -1);
 
 nlohmann::json toJson(const Plan& plan);
 nlohmann::json toJson(const WorkItem& item);
