@@ -161,6 +161,38 @@ TEST_F(BatchArchiveTest, PlansRunsAndRerunsTheArchive) {
   }
 }
 
+TEST_F(BatchArchiveTest, FiltersSelectSeriesAndListTheRestWithTheReason) {
+  auto plannedDescriptions = [&](std::vector<std::string> filter) {
+    std::vector<std::string> args = {"plan", archive_.root.string(), "-o", planPath_.string()};
+    args.insert(args.end(), filter.begin(), filter.end());
+    const ToolRun r = runTool("octoray-batch", args);
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    std::multiset<std::string> items;
+    int filtered = 0;
+    const json p = plan();
+    for (const auto& it : p["items"]) items.insert(it["description"].get<std::string>());
+    for (const auto& s : p["skipped"]) filtered += s["reason"].get<std::string>().starts_with("filtered out") ? 1 : 0;
+    EXPECT_EQ(static_cast<int>(items.size()) + filtered, BatchArchive::kItems);
+    return items;
+  };
+  // The Philips series are from 2015-02-06, the synthetic ones from 2024-01-01; the NIfTI file
+  // has no study date and no modality.
+  EXPECT_EQ(plannedDescriptions({"--study-date", "20150101-20151231"}).size(), 4u);
+  EXPECT_EQ(plannedDescriptions({"--study-date", "20240101-"}).size(), 3u);
+  const auto brain = plannedDescriptions({"--description", "brain"});
+  EXPECT_EQ(brain, (std::multiset<std::string>{"STD BRAIN 1MM, iDose", "STD BRAIN 5MM"}));
+  for (const auto& d : plannedDescriptions({"--min-slices", "50"})) EXPECT_NE(d, "STD BRAIN 5MM");
+  EXPECT_EQ(plannedDescriptions({"--modality", "CT"}).size(), static_cast<std::size_t>(BatchArchive::kItems));
+  const ToolRun none = runTool("octoray-batch", {"plan", archive_.root.string(), "-o", planPath_.string(),
+                                                 "--modality", "MR", "--description", "nothing-matches-this"});
+  EXPECT_EQ(none.exitCode, 1);
+  EXPECT_NE(none.err.find("nothing to build"), std::string::npos) << none.err;
+  const ToolRun badDate = runTool("octoray-batch", {"plan", archive_.root.string(), "-o", planPath_.string(),
+                                                    "--study-date", "2015-2016"});
+  EXPECT_EQ(badDate.exitCode, 1);
+  EXPECT_NE(badDate.err.find("YYYYMMDD"), std::string::npos) << badDate.err;
+}
+
 TEST_F(BatchArchiveTest, AChangedFileFailsItsItemUntilPlannedAgain) {
   ASSERT_EQ(runTool("octoray-batch", {"plan", archive_.root.string(), "-o", planPath_.string()}).exitCode, 0);
   // A slice changes after planning (one pixel value).
