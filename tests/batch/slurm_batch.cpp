@@ -10,6 +10,8 @@
 #include <cstdlib>
 #include <thread>
 
+#include <fmt/format.h>
+
 #include "batch_archive.h"
 #include "run_process.h"
 #include "test_paths.h"
@@ -107,6 +109,18 @@ TEST(BatchSlurm, JobArrayBuildsTheArchive) {
   EXPECT_EQ(validated.exitCode, 0) << validated.out;
   EXPECT_EQ(validated.json()["passed"], BatchArchive::kItems);
 
+  // The stores the tasks built are the ones octoray-import builds.
+  const json plan = json::parse(readText(planPath));
+  for (const auto& it : plan["items"]) {
+    const fs::path reference = dir / fmt::format("reference-{}.octoray", it["index"].get<int>());
+    const ToolRun imported =
+        it["kind"] == "dicom"
+            ? runTool("octoray-import", {archive.root.string(), "--series", it["seriesUid"], "-o", reference.string()})
+            : runTool("octoray-import", {it["path"], "-o", reference.string()});
+    ASSERT_EQ(imported.exitCode, 0) << imported.err;
+    EXPECT_EQ(readText(it["output"].get<std::string>()), readText(reference)) << it["output"];
+  }
+
   // Nothing left to submit, and no patient name in the script the cluster ran.
   const ToolRun again = runTool("octoray-batch", {"slurm", planPath.string()});
   EXPECT_EQ(again.exitCode, 0);
@@ -116,8 +130,10 @@ TEST(BatchSlurm, JobArrayBuildsTheArchive) {
     if (e.is_regular_file()) scripts += readText(e.path());
   }
   EXPECT_NE(scripts.find("--array=0-"), std::string::npos);
+  for (const auto& e : fs::directory_iterator(dir / "shared/plan.manifest")) scripts += readText(e.path());
+  scripts += logs;
   for (const std::string& id : archive.identifiers) {
-    EXPECT_EQ(scripts.find(id), std::string::npos) << "'" << id << "' in the sbatch script";
+    EXPECT_EQ(scripts.find(id), std::string::npos) << "'" << id << "' in the script, a manifest or a log";
   }
 }
 

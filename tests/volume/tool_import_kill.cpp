@@ -90,8 +90,15 @@ std::string readFile(const fs::path& path) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
+// The builder's temporary: ".NAME.partial-HOST-PID" ('-' and '/' in the host name as '_').
 fs::path partialPath(const fs::path& out, pid_t pid) {
-  return out.parent_path() / ("." + out.filename().string() + ".partial-" + std::to_string(pid));
+  char host[256] = {};
+  ::gethostname(host, sizeof host - 1);
+  std::string name = host;
+  for (char& c : name) {
+    if (c == '/' || c == '-') c = '_';
+  }
+  return out.parent_path() / ("." + out.filename().string() + ".partial-" + name + "-" + std::to_string(pid));
 }
 
 // Waits until the child has created its temporary (so its signal handlers are installed and

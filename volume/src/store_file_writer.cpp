@@ -16,8 +16,16 @@ namespace octoray::volume::detail {
 namespace fs = std::filesystem;
 namespace {
 
+// ".NAME.partial-HOST-": the host, so that on a filesystem shared by a cluster's nodes a build
+// only ever judges its own machine's temporaries (a PID means nothing on another host).
 std::string tempPrefix(const fs::path& finalPath) {
-  return "." + finalPath.filename().string() + ".partial-";
+  char host[256] = {};
+  ::gethostname(host, sizeof host - 1);
+  std::string name = host;
+  for (char& c : name) {
+    if (c == '/' || c == '-') c = '_';
+  }
+  return "." + finalPath.filename().string() + ".partial-" + name + "-";
 }
 
 void removeStaleTemporaries(const fs::path& finalPath) {
