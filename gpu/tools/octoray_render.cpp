@@ -694,6 +694,17 @@ int runGpu(const Arguments& a) {
 
   writeOutputs(first.image, a);
 
+  // A pool too small for the cut the view asks for draws some places coarser than
+  // --lod-pixels: said, never silent.
+  std::vector<std::string> warnings;
+  if (const gpu::WorkingSetStats& w = first.stats.workingSet; w.stoppedByPool > 0) {
+    warnings.push_back(fmt::format(
+        "the GPU brick pool (--pool-mib {}: {} bricks) is full: {} place(s) of the picture are drawn "
+        "coarser than --lod-pixels {} asks; raise --pool-mib",
+        a.poolMib, first.stats.poolSlots, w.stoppedByPool, a.lodPixels));
+  }
+  for (const auto& w : warnings) fmt::print(stderr, "octoray-render: warning: {}\n", w);
+
   if (a.json) {
     options.stats = false;  // the timed variant's defines, not the counting one's
     const std::vector<std::string> defines = renderer.variantDefines(tf, options, camera.projection);
@@ -715,6 +726,7 @@ int runGpu(const Arguments& a) {
         {"medianOf", cli::steadyFramesDescription(framesMs.size())},
         {"frames", frames},
         {"imageAdaptiveError", adaptiveError},
+        {"warnings", warnings},
         {"camera", gpu::cameraToJson(camera)},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
     std::cout << report.dump(2) << '\n';

@@ -96,6 +96,37 @@ TEST_F(GpuRenderTool, TimingLoopReportsEveryFrame) {
   EXPECT_EQ(m.nonFiniteB, 0);
 }
 
+// A pool too small for the finest level the view asks for: the picture is coarser, and the
+// tool says so (stderr and --json), instead of a silently coarser picture.
+TEST_F(GpuRenderTool, PoolTooSmallForTheLevelOfDetailIsWarned) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  volume::PhantomOptions phantom;
+  phantom.dims = {160, 160, 128};  // 800 leaves of 16^3 (+ borders): 13 MiB, a 1 MiB pool holds ~50
+  const std::string big = (dir / "big.octoray").string();
+  volume::BuildOptions options;
+  options.brickSize = 16;
+  options.border = 2;
+  volume::buildStore(*volume::makePhantom(phantom), big, options);
+  const std::string render = toolPath("octoray-render").string();
+  const std::vector<std::string> common = {"--preset", "bone", "--size", "96x96", "--gpu", "--lod-pixels", "0", "--json"};
+  std::vector<std::string> small = {render, big, "-o", (dir / "small-pool.png").string(), "--pool-mib", "1"};
+  small.insert(small.end(), common.begin(), common.end());
+  const ProcessResult r = runProcess(small);
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.err.find("--pool-mib 1"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("coarser than --lod-pixels 0"), std::string::npos) << r.err;
+  const auto report = nlohmann::json::parse(r.out);
+  ASSERT_EQ(report["warnings"].size(), 1u);
+  EXPECT_GT(report["frames"][0]["stoppedByPool"].get<int64_t>(), 0);
+
+  std::vector<std::string> large = {render, big, "-o", (dir / "large-pool.png").string(), "--pool-mib", "64"};
+  large.insert(large.end(), common.begin(), common.end());
+  const ProcessResult enough = runProcess(large);
+  ASSERT_EQ(enough.exitCode, 0) << enough.err;
+  EXPECT_EQ(enough.err.find("warning"), std::string::npos) << enough.err;
+  EXPECT_TRUE(nlohmann::json::parse(enough.out)["warnings"].empty());
+}
+
 TEST_F(GpuRenderTool, NonStoreInputUsesATemporaryStoreThatIsRemoved) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const std::string render = toolPath("octoray-render").string();

@@ -63,5 +63,18 @@ TEST(OctorayTf, BadInputIsOneMessageAndExit1) {
   EXPECT_EQ(std::count(result.err.begin(), result.err.end(), '\n'), 1) << result.err;
 }
 
+// A number too large for a double is named with the file, like every other JSON mistake.
+TEST(OctorayTf, NumberOverflowNamesTheFile) {
+  const fs::path dir = test::freshTempDir("tf_tool_overflow");
+  const fs::path input = dir / "overflow.json";
+  std::ofstream(input) << R"({"format": "octoray-transfer-function", "version": 1, "name": "x",
+                             "opacity": [[1e999, 0]]})";
+  const test::ProcessResult result =
+      test::runProcess({test::toolPath("octoray-tf").string(), "list", input.string()});
+  EXPECT_EQ(result.exitCode, 1);
+  EXPECT_NE(result.err.find(input.string() + ": "), std::string::npos) << result.err;
+  EXPECT_NE(result.err.find("1e999"), std::string::npos) << result.err;
+}
+
 }  // namespace
 }  // namespace octoray::transfer

@@ -46,7 +46,7 @@ std::string readText(const fs::path& path) {
 json parseJson(const std::string& text, const std::string& path) {
   try {
     return json::parse(text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse errors, and number overflow (out_of_range)
     throw Error(path, fmt::format("not valid JSON: {}", e.what()));
   }
 }
