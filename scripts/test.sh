@@ -2,7 +2,8 @@
 # Builds and runs the whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer
 # (optimised, with debug info: every test runs, and any memory error or undefined behaviour
 # fails it), the loader and working-set tests under ThreadSanitizer, then fuzzes the store
-# reader for 60 s. Installs missing Debian packages first.
+# reader for 60 s and the volume-header, transfer-function and DICOMDIR parsers for 25 s each.
+# Installs missing Debian packages first.
 # The Release build of README's first command runs the same code without instrumentation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -43,22 +44,41 @@ export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$PWD/s
 taskset -c 0 build-tsan/bin/volume_unit_tests --gtest_filter='BrickLoader*:BrickCache*'
 OCTORAY_REQUIRE_GL=1 taskset -c 0 build-tsan/bin/gpu_gl_tests --gtest_filter='WorkingSetTest.*'
 unset TSAN_OPTIONS
-echo "== libFuzzer: store reader (60 s, ASan + UBSan)"
+echo "== libFuzzer: store reader 60 s; volume headers, transfer functions, DICOMDIR 25 s each (ASan + UBSan)"
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DOCTORAY_FUZZ=ON -DOCTORAY_BUILD_TESTS=OFF -DOCTORAY_BUILD_BENCHMARKS=OFF
-cmake --build build-fuzz -j "$jobs" --target fuzz_store_reader
-fuzz_dir=build-fuzz/fuzz-store-reader
-rm -rf "$fuzz_dir" && mkdir -p "$fuzz_dir/corpus" "$fuzz_dir/artifacts"
-build-fuzz/bin/make_store_seeds "$fuzz_dir/seeds"
-# New inputs go to corpus/; a crash, leak, timeout or OOM input to artifacts/ and fails the run.
-if ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-  build-fuzz/bin/fuzz_store_reader "$fuzz_dir/corpus" "$fuzz_dir/seeds" \
-    -max_total_time=60 -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
-    -artifact_prefix="$fuzz_dir/artifacts/" >"$fuzz_dir/fuzz.log" 2>&1; then
-  echo "fuzz_store_reader: no crash in 60 s ($(grep -o 'stat::number_of_executed_units: *[0-9]*' \
-    "$fuzz_dir/fuzz.log" | grep -o '[0-9]*$') executions; log $fuzz_dir/fuzz.log)"
-else
-  tail -n 60 "$fuzz_dir/fuzz.log"
-  echo "fuzz_store_reader: FAILED, reproducer in $fuzz_dir/artifacts/ (log $fuzz_dir/fuzz.log)" >&2
-  exit 1
-fi
+fuzz_targets=(fuzz_store_reader fuzz_volume_headers fuzz_transfer_functions fuzz_dicomdir)
+cmake --build build-fuzz -j "$jobs" --target "${fuzz_targets[@]}"
+rm -rf build-fuzz/seeds && build-fuzz/bin/make_store_seeds build-fuzz/seeds/store-reader
+shared_dir=$(cd .. && pwd)/shared
+build-fuzz/bin/make_format_seeds build-fuzz/seeds "$shared_dir"
+# fuzz TARGET SEEDS SECONDS: the kept crashers of fuzz/regressions/TARGET first (each must now
+# pass), then SECONDS of fuzzing from SEEDS; new inputs go to corpus/, a crash, leak, timeout or
+# OOM input to artifacts/ and fails the run.
+fuzz() {
+  local target=$1 seeds=$2 seconds=$3 dir=build-fuzz/$1
+  rm -rf "$dir" && mkdir -p "$dir/corpus" "$dir/artifacts"
+  local options=(-timeout=10 -rss_limit_mb=2048 -artifact_prefix="$dir/artifacts/")
+  export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+  if [[ -d fuzz/regressions/$target ]] && compgen -G "fuzz/regressions/$target/*" >/dev/null; then
+    if ! "build-fuzz/bin/$target" "${options[@]}" fuzz/regressions/"$target"/* >"$dir/regressions.log" 2>&1; then
+      tail -n 40 "$dir/regressions.log"
+      echo "$target: a kept crasher (fuzz/regressions/$target) fails again" >&2
+      exit 1
+    fi
+  fi
+  if "build-fuzz/bin/$target" "$dir/corpus" "$seeds" -max_total_time="$seconds" -print_final_stats=1 \
+      "${options[@]}" >"$dir/fuzz.log" 2>&1; then
+    echo "$target: no crash in $seconds s ($(grep -o 'stat::number_of_executed_units: *[0-9]*' \
+      "$dir/fuzz.log" | grep -o '[0-9]*$') executions; log $dir/fuzz.log)"
+  else
+    tail -n 60 "$dir/fuzz.log"
+    echo "$target: FAILED, reproducer in $dir/artifacts/ (keep it in fuzz/regressions/$target once fixed)" >&2
+    exit 1
+  fi
+  unset ASAN_OPTIONS UBSAN_OPTIONS
+}
+fuzz fuzz_store_reader build-fuzz/seeds/store-reader 60
+fuzz fuzz_volume_headers build-fuzz/seeds/volume-headers 25
+fuzz fuzz_transfer_functions build-fuzz/seeds/transfer-functions 25
+fuzz fuzz_dicomdir build-fuzz/seeds/dicomdir 25

@@ -377,6 +377,15 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& root,
 void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::path>& visited,
                    std::set<std::string>& listed, DicomScan& scan) {
   if (!visited.insert(fs::weakly_canonical(dirFile)).second) return;
+  // GDCM asserts (aborting the process) on some malformed files: vetted in a child first, like
+  // every image header (found by fuzz_dicomdir).
+  try {
+    detail::vetWithGdcm(dirFile.string());
+  } catch (const Error& e) {
+    scan.warnings.push_back(dirFile.string() + ": DICOMDIR could not be parsed (" + e.reason() +
+                            "); files are found by searching the folder instead");
+    return;
+  }
   gdcm::Reader reader;
   reader.SetFileName(dirFile.c_str());
   if (!reader.Read()) {
@@ -417,8 +426,14 @@ void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::p
     }
     gdcm::Reader probe;
     probe.SetFileName(file->c_str());
+    bool vetted = true;
+    try {
+      detail::vetWithGdcm(file->string());
+    } catch (const Error&) {
+      vetted = false;  // listed as a file: reading its header reports what is wrong with it
+    }
     const bool isDirectory =
-        probe.ReadUpToTag(gdcm::Tag(0x0008, 0x0005), std::set<gdcm::Tag>{}) &&
+        vetted && probe.ReadUpToTag(gdcm::Tag(0x0008, 0x0005), std::set<gdcm::Tag>{}) &&
         stringValue(probe.GetFile().GetHeader(), kMediaStorageSopClass) == kDirectorySopClass;
     if (isDirectory) {
       readDirectory(*file, root, visited, listed, scan);
