@@ -8,10 +8,12 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <thread>
 #include <numbers>
 
 #include "memory_volume.h"
 #include "octoray/core/error.h"
+#include "octoray/dicom/synthetic_series.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/viewer/dataset.h"
 #include "octoray/viewer/measure.h"
@@ -353,6 +355,28 @@ TEST(ViewerDataset, StoreCacheKeyDependsOnContentNotPath) {
   test::MemoryVolume c({20, 20, 10}, [](int64_t i, int64_t, int64_t k) { return static_cast<float>(i + (k == 9)); });
   EXPECT_EQ(storeCacheKey(a), storeCacheKey(b));
   EXPECT_NE(storeCacheKey(a), storeCacheKey(c));  // the last slice differs
+}
+
+// A slice the viewer could not read is named in the dataset's warnings (the Data panel lists
+// them), not silently interpolated over.
+TEST(ViewerDataset, UnreadableSliceIsNamedInTheWarnings) {
+  const auto dir = test::freshTempDir("viewer_left_out");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 8;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir / "series", spec);
+  const std::filesystem::path cut = written.slices()[4].path;
+  std::filesystem::resize_file(cut, 300);
+  Dataset dataset((dir / "series").string(), dir / "cache");
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (dataset.state() == Dataset::State::Importing && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_EQ(dataset.state(), Dataset::State::Ready) << dataset.error();
+  const std::vector<std::string> warnings = dataset.warnings();
+  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
+    return w.find(cut.string()) != std::string::npos;
+  });
+  EXPECT_TRUE(named) << ::testing::PrintToString(warnings);
 }
 
 }  // namespace

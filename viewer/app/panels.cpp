@@ -99,6 +99,17 @@ void App::drawPanels() {
       } else if (dataset_->reusedCache()) {
         ImGui::TextDisabled("store reused from the cache");
       }
+      // What the reader decided or repaired, and files left out of the volume, by name.
+      const std::vector<std::string> warnings = dataset_->warnings();
+      if (!warnings.empty()) {
+        ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1.0f, 0.78f, 0.3f, 1.0f));
+        const bool open = ImGui::TreeNode("warnings", "%zu warning%s", warnings.size(), warnings.size() == 1 ? "" : "s");
+        ImGui::PopStyleColor();
+        if (open) {
+          for (const auto& w : warnings) ImGui::TextWrapped("%s", w.c_str());
+          ImGui::TreePop();
+        }
+      }
     }
   }
 

@@ -208,6 +208,7 @@ void Dataset::importThread() {
     {
       std::lock_guard lock(mutex_);
       info_ = info;
+      warnings_ = info.warnings;
       status_ = "hashing";
     }
     slicesTotal_ = info.dims[2];
@@ -215,7 +216,13 @@ void Dataset::importThread() {
       // The patient corner's identity, from the first image of the series the import reads.
       try {
         const dicom::DicomScan scan = dicom::scanDicom(path_);
-        const auto& series = scan.series.at(dicom::defaultSeriesIndex(scan, path_));
+        const std::size_t chosen = dicom::defaultSeriesIndex(scan, path_);
+        const auto& series = scan.series.at(chosen);
+        const std::vector<std::string> leftOut = dicom::filesLeftOut(scan, chosen);
+        {
+          std::lock_guard lock(mutex_);
+          warnings_.insert(warnings_.end(), leftOut.begin(), leftOut.end());
+        }
         if (!series.frames.empty()) {
           const dicom::PatientIdentity identity = dicom::readPatientIdentity(series.frames.front().path);
           std::lock_guard lock(mutex_);
@@ -326,6 +333,11 @@ std::string Dataset::storePath() const {
 const PreviewVolume* Dataset::preview() const {
   std::lock_guard lock(mutex_);
   return preview_.get();
+}
+
+std::vector<std::string> Dataset::warnings() const {
+  std::lock_guard lock(mutex_);
+  return warnings_;
 }
 
 dicom::PatientIdentity Dataset::patient() const {

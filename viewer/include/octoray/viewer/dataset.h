@@ -84,6 +84,9 @@ class Dataset {
   // For a DICOM source: patient name, ID, dates from its first image (empty for stores, which
   // keep no identity).
   dicom::PatientIdentity patient() const;
+  // What the reader had to decide or repair, and every file of a DICOM source left out of the
+  // volume (split off into another part of the series, or unreadable), by name.
+  std::vector<std::string> warnings() const;
 
  private:
   void importThread();
@@ -97,6 +100,7 @@ class Dataset {
   std::string error_, status_, storePath_;
   VolumeInfo info_;
   dicom::PatientIdentity patient_;
+  std::vector<std::string> warnings_;
   std::unique_ptr<PreviewVolume> preview_;
   std::unique_ptr<volume::StoreReader> store_;
   std::thread import_, previewThread_;
