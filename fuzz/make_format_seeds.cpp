@@ -1,11 +1,13 @@
 // Writes the seed corpora of the format fuzz targets: real files, each prefixed with the byte
 // that selects its format in the target.
-//   make_format_seeds OUT_DIR [SHARED_DIR]
+//   make_format_seeds OUT_DIR [SHARED_DIR [SOURCE_DIR]]
 // OUT_DIR/volume-headers: a small phantom as NRRD (attached), NIfTI (.nii) and MetaImage (.mha),
 //   a detached NRRD and MetaImage header naming data.raw;
 // OUT_DIR/transfer-functions: every built-in preset as octoray JSON, and 3D Slicer's presets.xml,
 //   VolumeProperty.vp and a .vp.json where SHARED_DIR/data/presets/slicer holds them;
-// OUT_DIR/dicomdir: the Philips DICOMDIR of SHARED_DIR/data/dicom/dcm_qa_ct, when present.
+// OUT_DIR/dicomdir: the Philips DICOMDIR of SHARED_DIR/data/dicom/dcm_qa_ct, when present;
+// OUT_DIR/json-documents: a camera, a viewer script, and from SOURCE_DIR the window/level
+//   preset table and the session example of docs/session-json.md.
 
 #include <cstdio>
 #include <filesystem>
@@ -94,6 +96,31 @@ int main(int argc, char** argv) {
            "scalarOpacity": [[-1000, 0], [3000, 1]], "rgbTransferFunction": [[-1000, 0, 0, 0], [3000, 1, 1, 1]]}]})");
   fs::create_directories(out / "dicomdir");
   std::ofstream(out / "dicomdir/empty", std::ios::binary) << std::string(132, '\0');
+
+  // JSON documents (selector: 0 camera, 1 session, 2 script, 3 window/level presets).
+  const fs::path documents = out / "json-documents";
+  seed(documents, "camera.json", 0,
+       R"({"projection": "perspective", "eye": [0, -400, 0], "target": [0, 0, 0], "up": [0, 0, 1],
+           "fovYDegrees": 30, "orthoHeightMm": 200, "width": 512, "height": 512})");
+  seed(documents, "script.json", 2,
+       R"({"format": "octoray-view-script", "version": 1, "events": [
+           {"type": "key", "key": "1"},
+           {"type": "drag", "button": "left", "from": {"view": "axial", "pixel": [200, 200]},
+            "to": {"view": "axial", "pixel": [300, 150]}, "steps": 5},
+           {"type": "wait-converged"}, {"type": "screenshot", "path": "after.png"}, {"type": "quit"}]})");
+  if (argc > 3) {
+    // The source tree's own documents: the preset table and the session examples of the docs.
+    const fs::path source = argv[3];
+    if (fs::exists(source / "viewer/presets/window-level.json")) {
+      seed(documents, "window-level.json", 3, readAll(source / "viewer/presets/window-level.json"));
+    }
+    const std::string doc = readAll(source / "docs/session-json.md");
+    const auto start = doc.find("```json\n");
+    if (start != std::string::npos) {
+      const auto end = doc.find("```", start + 8);
+      seed(documents, "session.json", 1, doc.substr(start + 8, end - start - 8));
+    }
+  }
   fs::remove_all(work);
   std::cout << "seeds written to " << out << "\n";
   return 0;
