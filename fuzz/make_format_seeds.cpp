@@ -6,6 +6,7 @@
 // OUT_DIR/transfer-functions: every built-in preset as octoray JSON, and 3D Slicer's presets.xml,
 //   VolumeProperty.vp and a .vp.json where SHARED_DIR/data/presets/slicer holds them;
 // OUT_DIR/dicomdir: the Philips DICOMDIR of SHARED_DIR/data/dicom/dcm_qa_ct, when present;
+// OUT_DIR/raw-options: the four raw-volume options of octoray-import, one per line;
 // OUT_DIR/json-documents: a camera, a viewer script, and from SOURCE_DIR the window/level
 //   preset table and the session example of docs/session-json.md.
 
@@ -96,6 +97,13 @@ int main(int argc, char** argv) {
            "scalarOpacity": [[-1000, 0], [3000, 1]], "rgbTransferFunction": [[-1000, 0, 0, 0], [3000, 1, 1, 1]]}]})");
   fs::create_directories(out / "dicomdir");
   std::ofstream(out / "dicomdir/empty", std::ios::binary) << std::string(132, '\0');
+
+  // Raw-volume options, one per line: dims, type, spacing, header bytes.
+  const fs::path rawOptions = out / "raw-options";
+  fs::create_directories(rawOptions);
+  std::ofstream(rawOptions / "int16") << "16x16x8\nint16\n0.5,0.5,1\n0\n";
+  std::ofstream(rawOptions / "float32") << "8x8x8\nfloat32\n1,1,2\n2048\n";
+  std::ofstream(rawOptions / "uint8") << "64x64x1\nuint8\n\n\n";
 
   // JSON documents (selector: 0 camera, 1 session, 2 script, 3 window/level presets).
   const fs::path documents = out / "json-documents";

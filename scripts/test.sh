@@ -2,8 +2,8 @@
 # Builds and runs the whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer
 # (optimised, with debug info: every test runs, and any memory error or undefined behaviour
 # fails it), the loader and working-set tests under ThreadSanitizer, then fuzzes the store
-# reader for 60 s and the volume-header, transfer-function, DICOMDIR and JSON-document (camera,
-# session, script, presets) parsers for 25 s each.
+# reader for 60 s and the volume-header, raw-option, transfer-function, DICOMDIR and
+# JSON-document (camera, session, script, presets) parsers for 20-25 s each.
 # Installs missing Debian packages first.
 # The Release build of README's first command runs the same code without instrumentation.
 set -euo pipefail
@@ -45,10 +45,11 @@ export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$PWD/s
 taskset -c 0 build-tsan/bin/volume_unit_tests --gtest_filter='BrickLoader*:BrickCache*'
 OCTORAY_REQUIRE_GL=1 taskset -c 0 build-tsan/bin/gpu_gl_tests --gtest_filter='WorkingSetTest.*'
 unset TSAN_OPTIONS
-echo "== libFuzzer: store reader 60 s; volume headers, transfer functions, DICOMDIR, JSON documents 25 s each (ASan + UBSan)"
+echo "== libFuzzer: store reader 60 s; volume headers, raw options, transfer functions, DICOMDIR, JSON documents 20-25 s each (ASan + UBSan)"
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DOCTORAY_FUZZ=ON -DOCTORAY_BUILD_TESTS=OFF -DOCTORAY_BUILD_BENCHMARKS=OFF
-fuzz_targets=(fuzz_store_reader fuzz_volume_headers fuzz_transfer_functions fuzz_dicomdir fuzz_json_documents)
+fuzz_targets=(fuzz_store_reader fuzz_volume_headers fuzz_raw_options fuzz_transfer_functions fuzz_dicomdir
+              fuzz_json_documents)
 cmake --build build-fuzz -j "$jobs" --target "${fuzz_targets[@]}"
 rm -rf build-fuzz/seeds && build-fuzz/bin/make_store_seeds build-fuzz/seeds/store-reader
 shared_dir=$(cd .. && pwd)/shared
@@ -81,6 +82,7 @@ fuzz() {
 }
 fuzz fuzz_store_reader build-fuzz/seeds/store-reader 60
 fuzz fuzz_volume_headers build-fuzz/seeds/volume-headers 25
+fuzz fuzz_raw_options build-fuzz/seeds/raw-options 20
 fuzz fuzz_transfer_functions build-fuzz/seeds/transfer-functions 25
 fuzz fuzz_dicomdir build-fuzz/seeds/dicomdir 25
 fuzz fuzz_json_documents build-fuzz/seeds/json-documents 25
