@@ -384,8 +384,11 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
     try {
       std::sort(it.files.begin(), it.files.end());
       it.files.erase(std::unique(it.files.begin(), it.files.end()), it.files.end());
-      it.contentHash = sourceContentHash(it.files);
-      for (const auto& f : it.files) it.bytes += fs::file_size(f);
+      for (const auto& f : it.files) {
+        it.fileHashes.push_back(fileContentHash(f));
+        it.bytes += fs::file_size(f);
+      }
+      it.contentHash = combinedContentHash(it.fileHashes);
     } catch (const std::exception& e) {
       hashErrors[i] = e.what();
     }
@@ -462,7 +465,7 @@ json toJson(const WorkItem& it) {
           {"patientIdHash", it.patientIdHash}, {"dims", it.dims},
           {"estimatedVoxels", it.voxels()}, {"bytes", it.bytes},
           {"contentHash", it.contentHash}, {"output", it.output},
-          {"folder", it.folder}, {"files", it.files}};
+          {"folder", it.folder}, {"files", it.files}, {"fileHashes", it.fileHashes}};
 }
 
 WorkItem itemFromJson(const json& e, const std::string& path) {
@@ -484,6 +487,11 @@ WorkItem itemFromJson(const json& e, const std::string& path) {
     it.output = e.at("output").get<std::string>();
     it.folder = e.at("folder").get<std::string>();
     it.files = e.at("files").get<std::vector<std::string>>();
+    it.fileHashes = e.at("fileHashes").get<std::vector<std::string>>();
+    if (it.fileHashes.size() != it.files.size()) {
+      throw Error(path, fmt::format("item {}: {} files but {} file hashes", it.index, it.files.size(),
+                                    it.fileHashes.size()));
+    }
     if (it.kind != "dicom" && it.kind != "file") {
       throw Error(path, fmt::format("item {}: unknown kind '{}'", it.index, it.kind));
     }

@@ -77,6 +77,21 @@ std::string tail(const std::string& text, std::size_t lines) {
   return out;
 }
 
+// Which file changed since the plan was made: the first whose contents differ from the plan's
+// hash, or is gone; else the set of files the reader uses differs.
+Error changedSince(const WorkItem& item) {
+  const std::vector<std::string> files = item.absoluteFiles();
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    std::error_code ec;
+    if (!fs::exists(files[i], ec)) return Error(files[i], "is gone since the plan was made: make the plan again");
+    if (i < item.fileHashes.size() && fileContentHash(files[i]) != item.fileHashes[i]) {
+      return Error(files[i], "changed since the plan was made (its content hash differs): make the plan again");
+    }
+  }
+  return Error(item.kind == "file" ? item.path : item.folder,
+               "the files the volume is read from are not the ones planned: make the plan again");
+}
+
 std::unique_ptr<VolumeSource> openItem(const WorkItem& item) {
   if (item.kind == "file") return openVolume(item.path);
   const std::vector<std::string> files = item.absoluteFiles();
@@ -278,11 +293,7 @@ Record buildItem(const WorkItem& item, uint64_t memoryBudgetBytes, const std::at
     auto source = openItem(item);
     const VolumeInfo& info = source->info();
     const std::string hash = sourceContentHash(info.sourceFiles);
-    if (hash != item.contentHash) {
-      throw Error(item.kind == "file" ? item.path : item.folder,
-                  "the files changed since the plan was made (their content hash differs): make "
-                  "the plan again");
-    }
+    if (hash != item.contentHash) throw changedSince(item);
     std::error_code ec;
     fs::create_directories(fs::path(item.output).parent_path(), ec);
     if (ec) throw Error(fs::path(item.output).parent_path().string(), "cannot create the folder: " + ec.message());

@@ -36,17 +36,37 @@ XXH128_hash_t hashFile(const std::string& path) {
 
 }  // namespace
 
-std::string sourceContentHash(const std::vector<std::string>& files) {
-  std::vector<XXH128_canonical_t> digests(files.size());
-  for (std::size_t i = 0; i < files.size(); ++i) XXH128_canonicalFromHash(&digests[i], hashFile(files[i]));
-  std::sort(digests.begin(), digests.end(), [](const auto& a, const auto& b) {
-    return std::memcmp(a.digest, b.digest, sizeof a.digest) < 0;
-  });
+std::string fileContentHash(const std::string& file) {
+  XXH128_canonical_t digest;
+  XXH128_canonicalFromHash(&digest, hashFile(file));
+  std::string hex;
+  for (unsigned char byte : digest.digest) hex += fmt::format("{:02x}", byte);
+  return hex;
+}
+
+std::string combinedContentHash(std::vector<std::string> fileHashes) {
+  // Sorted as hex (the same order as the bytes), then the bytes hashed.
+  std::sort(fileHashes.begin(), fileHashes.end());
+  std::vector<unsigned char> bytes;
+  bytes.reserve(fileHashes.size() * 16);
+  for (const auto& hex : fileHashes) {
+    if (hex.size() != 32) throw Error("", fmt::format("'{}' is not a file content hash", hex));
+    for (std::size_t i = 0; i < 32; i += 2) {
+      bytes.push_back(static_cast<unsigned char>(std::stoi(hex.substr(i, 2), nullptr, 16)));
+    }
+  }
   XXH128_canonical_t combined;
-  XXH128_canonicalFromHash(&combined, XXH3_128bits(digests.data(), digests.size() * sizeof(XXH128_canonical_t)));
+  XXH128_canonicalFromHash(&combined, XXH3_128bits(bytes.data(), bytes.size()));
   std::string hex;
   for (unsigned char byte : combined.digest) hex += fmt::format("{:02x}", byte);
   return hex;
+}
+
+std::string sourceContentHash(const std::vector<std::string>& files) {
+  std::vector<std::string> hashes;
+  hashes.reserve(files.size());
+  for (const auto& f : files) hashes.push_back(fileContentHash(f));
+  return combinedContentHash(std::move(hashes));
 }
 
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,

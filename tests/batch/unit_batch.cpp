@@ -64,6 +64,7 @@ Plan twoItemPlan() {
     it.index = i;
     it.kind = "dicom";
     it.files = {"a.dcm"};
+    it.fileHashes = {std::string(32, '0')};
     it.contentHash = i == 0 ? "hash0" : "hash1";
     it.output = "/out/" + std::to_string(i) + ".octoray";
     it.dims = {512, 512, 100 + i};

@@ -67,6 +67,9 @@ TEST(ContentHash, IgnoresNamesAndOrderAndSeesEveryByte) {
   }
   EXPECT_NE(ab, sourceContentHash({(dir / "a").string(), (dir / "b").string()}));
   expectErrorMentioning([&] { sourceContentHash({(dir / "missing").string()}); }, (dir / "missing").string());
+  // The combination of per-file hashes is the same hash.
+  EXPECT_EQ(combinedContentHash({fileContentHash((dir / "b").string()), fileContentHash((dir / "a").string())}),
+            sourceContentHash({(dir / "a").string(), (dir / "b").string()}));
 }
 
 }  // namespace

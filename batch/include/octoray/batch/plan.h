@@ -28,6 +28,7 @@ struct WorkItem {
   std::string path;       // dicom: the archive path it was found under; file: what openVolume reads
   std::string folder;     // the folder `files` are relative to
   std::vector<std::string> files;  // every file the samples come from, relative to `folder`, sorted
+  std::vector<std::string> fileHashes;  // fileContentHash() of each file, in the same order
   uint64_t bytes = 0;              // their total size
   std::string contentHash;         // sourceContentHash() of the files
   std::string seriesUid, studyUid, studyDate, modality, description;

@@ -68,6 +68,10 @@ void checkGeometry(const Mat4& patientFromIndex, const std::string& path);
 // data a store was built from (the store's provenance, octoray-batch's skip test). Throws
 // octoray::Error naming the file that cannot be read.
 std::string sourceContentHash(const std::vector<std::string>& files);
+// Its parts: one file's XXH3-128 (32 hex digits), and the combination of such hashes
+// (sourceContentHash(files) == combinedContentHash(fileContentHash of each file)).
+std::string fileContentHash(const std::string& file);
+std::string combinedContentHash(std::vector<std::string> fileHashes);
 
 // Checks a slab request against the volume; throws octoray::Error naming `path` if invalid.
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,
