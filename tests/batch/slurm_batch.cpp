@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdlib>
+#include <sstream>
 #include <thread>
 
 #include <fmt/format.h>
@@ -64,6 +65,26 @@ bool jobFinished(const std::string& jobId) {
   return r.exitCode != 0 || r.out.find_first_not_of(" \n") == std::string::npos;
 }
 
+// The reason squeue gives for a task Slurm will never run again by itself (it failed to launch
+// and was requeued held, or the node was drained), or "" while every task is pending or running.
+std::string jobStuck(const std::string& jobId) {
+  const ProcessResult r = runProcess({"/usr/bin/squeue", "-h", "-j", jobId, "-o", "%i %T %r"});
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.find("held") != std::string::npos || line.find("HOLD") != std::string::npos ||
+        line.find("Drain") != std::string::npos || line.find("Down") != std::string::npos) {
+      return line;
+    }
+  }
+  return "";
+}
+
+std::string tailOf(const fs::path& path, std::size_t bytes = 3000) {
+  if (!fs::exists(path)) return "(no " + path.string() + ")";
+  const std::string text = readText(path);
+  return text.size() > bytes ? text.substr(text.size() - bytes) : text;
+}
+
 TEST(BatchSlurm, JobArrayBuildsTheArchive) {
   OCTORAY_REQUIRE_PATH(philipsDir());
   const fs::path dir = freshTempDir("slurm");
@@ -88,10 +109,15 @@ TEST(BatchSlurm, JobArrayBuildsTheArchive) {
   EXPECT_EQ(job["items"], BatchArchive::kItems);
 
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(8);
+  std::string stuck;
   while (!jobFinished(jobId) && std::chrono::steady_clock::now() < deadline) {
+    if (!(stuck = jobStuck(jobId)).empty()) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(500));
   }
-  ASSERT_TRUE(jobFinished(jobId)) << "job " << jobId << " did not finish in 8 minutes";
+  ASSERT_EQ(stuck, "") << "a task of job " << jobId << " will not run; slurmd's log:\n"
+                       << tailOf(dir / "cluster/log/slurmd.log");
+  ASSERT_TRUE(jobFinished(jobId)) << "job " << jobId << " did not finish in 8 minutes; slurmd's log:\n"
+                                  << tailOf(dir / "cluster/log/slurmd.log");
 
   // Each task wrote its own manifest file; status merges them.
   int taskManifests = 0;
