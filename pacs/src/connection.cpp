@@ -104,6 +104,7 @@ RetrieveReport retrieveSeriesInto(PacsConnection& pacs, const std::string& study
   request.studyInstanceUid = studyUid;
   request.seriesInstanceUid = seriesUid;
   request.instances = pacs.findInstances(studyUid, seriesUid);
+  sortForViewing(request.instances);
   request.folder = folder;
   request.progress = progress;
   return retrieveSeries(request, [&](const std::vector<std::string>& uids, const InstanceSink& sink) {

@@ -4,6 +4,9 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
+#include <cstdlib>
+#include <limits>
 #include <mutex>
 
 #include <fmt/format.h>
@@ -57,6 +60,30 @@ std::vector<std::string> allValues(const nlohmann::json& dataset, const char* ta
   if (value == it->end() || !value->is_array()) return out;
   for (const auto& v : *value) {
     if (v.is_string()) out.push_back(v.get<std::string>());
+  }
+  return out;
+}
+
+// A multi-valued DS (numbers, or strings holding numbers, PS3.18 F.2.3); empty when a value
+// is missing or not a finite number, or the count is not `count`.
+std::vector<double> numberValues(const nlohmann::json& dataset, const char* tag, std::size_t count) {
+  std::vector<double> out;
+  const auto it = dataset.find(tag);
+  if (it == dataset.end() || !it->is_object()) return out;
+  const auto value = it->find("Value");
+  if (value == it->end() || !value->is_array() || value->size() != count) return out;
+  for (const auto& v : *value) {
+    double x = std::numeric_limits<double>::quiet_NaN();
+    if (v.is_number()) {
+      x = v.get<double>();
+    } else if (v.is_string()) {
+      const std::string text = v.get<std::string>();
+      char* end = nullptr;
+      x = std::strtod(text.c_str(), &end);
+      if (end == text.c_str() || *end != '\0') x = std::numeric_limits<double>::quiet_NaN();
+    }
+    if (!std::isfinite(x)) return {};
+    out.push_back(x);
   }
   return out;
 }
@@ -324,7 +351,9 @@ std::vector<SeriesRecord> DicomWebClient::findSeries(const std::string& studyUid
 
 std::vector<InstanceRecord> DicomWebClient::findInstances(const std::string& studyUid,
                                                           const std::string& seriesUid) {
-  const std::string path = fmt::format("/studies/{}/series/{}/instances",
+  // ImagePositionPatient and ImageOrientationPatient are not in QIDO-RS's default instance
+  // attributes (PS3.18 Table 10.6.3-5): ask for them.
+  const std::string path = fmt::format("/studies/{}/series/{}/instances?includefield=00200032&includefield=00200037",
                                        checkedUid(studyUid, "study UID"),
                                        checkedUid(seriesUid, "series UID"));
   const Response r = get(path, "application/dicom+json");
@@ -334,6 +363,10 @@ std::vector<InstanceRecord> DicomWebClient::findInstances(const std::string& stu
     i.sopInstanceUid = firstValue(d, "00080018");
     i.sopClassUid = firstValue(d, "00080016");
     i.instanceNumber = countValue(d, "00200013");
+    if (const auto p = numberValues(d, "00200032", 3); !p.empty()) i.position = std::array<double, 3>{p[0], p[1], p[2]};
+    if (const auto o = numberValues(d, "00200037", 6); !o.empty()) {
+      i.orientation = std::array<double, 6>{o[0], o[1], o[2], o[3], o[4], o[5]};
+    }
     if (!i.sopInstanceUid.empty()) instances.push_back(std::move(i));
   }
   return instances;

@@ -28,6 +28,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -295,6 +296,25 @@ int64_t getCount(DcmDataset& dataset, const DcmTagKey& tag) {
   char* end = nullptr;
   const long long value = std::strtoll(text.c_str(), &end, 10);
   return (end && *end == '\0') ? value : -1;
+}
+
+// A multi-valued DS ("a\\b\\c"); empty unless it holds exactly `count` finite numbers.
+std::vector<double> getNumbers(DcmDataset& dataset, const DcmTagKey& tag, std::size_t count) {
+  const std::string text = getString(dataset, tag);
+  std::vector<double> out;
+  std::size_t start = 0;
+  while (start <= text.size() && !text.empty()) {
+    const std::size_t end = std::min(text.find('\\', start), text.size());
+    const std::string item = text.substr(start, end - start);
+    char* stop = nullptr;
+    const double x = std::strtod(item.c_str(), &stop);
+    if (item.empty() || stop == item.c_str() || !std::isfinite(x)) return {};
+    while (*stop == ' ') ++stop;
+    if (*stop != '\0') return {};
+    out.push_back(x);
+    start = end + 1;
+  }
+  return out.size() == count ? out : std::vector<double>{};
 }
 
 bool isAscii(const std::string& text) {
@@ -691,6 +711,8 @@ std::vector<InstanceRecord> dimseFindInstances(const DimseEndpoint& endpoint,
   putKey(keys, DCM_SOPInstanceUID, "");
   putKey(keys, DCM_SOPClassUID, "");
   putKey(keys, DCM_InstanceNumber, "");
+  putKey(keys, DCM_ImagePositionPatient, "");
+  putKey(keys, DCM_ImageOrientationPatient, "");
 
   std::vector<InstanceRecord> instances;
   for (const auto& match : find(endpoint, keys)) {
@@ -698,6 +720,12 @@ std::vector<InstanceRecord> dimseFindInstances(const DimseEndpoint& endpoint,
     record.sopInstanceUid = getString(*match, DCM_SOPInstanceUID);
     record.sopClassUid = getString(*match, DCM_SOPClassUID);
     record.instanceNumber = getCount(*match, DCM_InstanceNumber);
+    if (const auto p = getNumbers(*match, DCM_ImagePositionPatient, 3); !p.empty()) {
+      record.position = std::array<double, 3>{p[0], p[1], p[2]};
+    }
+    if (const auto o = getNumbers(*match, DCM_ImageOrientationPatient, 6); !o.empty()) {
+      record.orientation = std::array<double, 6>{o[0], o[1], o[2], o[3], o[4], o[5]};
+    }
     if (!record.sopInstanceUid.empty()) instances.push_back(std::move(record));
   }
   std::sort(instances.begin(), instances.end(), [](const auto& a, const auto& b) {

@@ -2,7 +2,10 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <map>
 #include <cstring>
 #include <cstdio>
 #include <fstream>
@@ -24,8 +27,6 @@ namespace octoray::pacs {
 namespace fs = std::filesystem;
 
 namespace {
-
-std::string instanceFileName(const std::string& sopInstanceUid) { return sopInstanceUid + ".dcm"; }
 
 std::vector<uint8_t> readFile(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
@@ -67,6 +68,8 @@ void removeStaleTemporaries(const fs::path& folder) {
 }
 
 }  // namespace
+
+std::string instanceFileName(const std::string& sopInstanceUid) { return sopInstanceUid + ".dcm"; }
 
 std::string verifyInstance(const std::vector<uint8_t>& part10, const std::string& sopInstanceUid) {
   if (part10.size() < 132 || std::string_view(reinterpret_cast<const char*>(part10.data()) + 128, 4) != "DICM") {
@@ -182,6 +185,42 @@ RetrieveReport retrieveSeries(const RetrieveRequest& request, const InstanceFetc
   writeAtomically(request.folder / kRetrievedRecordName, text.data(), text.size());
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return report;
+}
+
+// The orientation as a key: rounded to 1e-4, so that nearly equal orientations group.
+static std::array<long long, 6> orientationKey(const std::array<double, 6>& o) {
+  std::array<long long, 6> key{};
+  for (std::size_t i = 0; i < 6; ++i) key[i] = std::llround(o[i] * 1e4);
+  return key;
+}
+
+void sortForViewing(std::vector<InstanceRecord>& instances) {
+  std::map<std::array<long long, 6>, int> votes;
+  std::optional<std::array<double, 6>> majority;
+  int best = 0;
+  for (const auto& i : instances) {
+    if (!i.position || !i.orientation) continue;
+    const int n = ++votes[orientationKey(*i.orientation)];
+    if (n > best) best = n, majority = i.orientation;
+  }
+  std::array<double, 3> normal{0, 0, 0};
+  if (majority) {
+    const auto& o = *majority;
+    normal = {o[1] * o[5] - o[2] * o[4], o[2] * o[3] - o[0] * o[5], o[0] * o[4] - o[1] * o[3]};
+  }
+  auto placed = [&](const InstanceRecord& i) {
+    return majority && i.position && i.orientation && orientationKey(*i.orientation) == orientationKey(*majority);
+  };
+  auto along = [&](const InstanceRecord& i) {
+    const auto& p = *i.position;
+    return p[0] * normal[0] + p[1] * normal[1] + p[2] * normal[2];
+  };
+  std::stable_sort(instances.begin(), instances.end(), [&](const InstanceRecord& a, const InstanceRecord& b) {
+    const bool pa = placed(a), pb = placed(b);
+    if (pa != pb) return pa;
+    if (pa && along(a) != along(b)) return along(a) < along(b);
+    return a.instanceNumber < b.instanceNumber;  // ties keep the server's order
+  });
 }
 
 }  // namespace octoray::pacs

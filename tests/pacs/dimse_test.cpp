@@ -284,6 +284,9 @@ TEST_F(DimseOrthanc, FindsTheSeriesAndItsInstances) {
   EXPECT_TRUE(std::is_sorted(instances.begin(), instances.end(), [](const auto& a, const auto& b) {
     return a.instanceNumber < b.instanceNumber;
   }));
+  std::vector<fs::path> files;
+  for (const auto& [uid, file] : originals_) files.push_back(file);
+  expectListedGeometry(instances, geometryOfFiles(files));
 }
 
 TEST_F(DimseOrthanc, GetsTheWholeSeriesWithTheSamePixels) {

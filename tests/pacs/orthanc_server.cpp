@@ -17,8 +17,12 @@
 #include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <stdexcept>
 #include <thread>
+
+#include <gdcmReader.h>
+#include <gtest/gtest.h>
 
 #include "run_process.h"
 
@@ -384,6 +388,62 @@ void OrthancServer::upload(const std::vector<std::filesystem::path>& files) {
       throw std::runtime_error("Orthanc at " + httpUrl() + " refused " + file.string() + ": HTTP " +
                                std::to_string(code) + " " + http.body());
     }
+  }
+}
+
+namespace {
+
+std::vector<double> decimalStrings(const gdcm::DataSet& dataset, uint16_t group, uint16_t element) {
+  const gdcm::Tag tag(group, element);
+  std::vector<double> out;
+  if (!dataset.FindDataElement(tag)) return out;
+  const gdcm::ByteValue* value = dataset.GetDataElement(tag).GetByteValue();
+  if (!value) return out;
+  std::string text(value->GetPointer(), value->GetLength());
+  for (char& c : text) c = c == '\\' ? ' ' : c;
+  std::istringstream in(text);
+  for (double x; in >> x;) out.push_back(x);
+  return out;
+}
+
+}  // namespace
+
+std::map<std::string, FileGeometry> geometryOfFiles(const std::vector<std::filesystem::path>& files) {
+  std::map<std::string, FileGeometry> out;
+  for (const auto& file : files) {
+    gdcm::Reader reader;
+    reader.SetFileName(file.c_str());
+    if (!reader.Read()) throw std::runtime_error("GDCM cannot read " + file.string());
+    const gdcm::DataSet& dataset = reader.GetFile().GetDataSet();
+    const gdcm::Tag uidTag(0x0008, 0x0018);
+    const gdcm::ByteValue* uidValue = dataset.GetDataElement(uidTag).GetByteValue();
+    if (!uidValue) throw std::runtime_error(file.string() + ": no SOPInstanceUID");
+    std::string uid(uidValue->GetPointer(), uidValue->GetLength());
+    while (!uid.empty() && (uid.back() == '\0' || uid.back() == ' ')) uid.pop_back();
+    const auto p = decimalStrings(dataset, 0x0020, 0x0032), o = decimalStrings(dataset, 0x0020, 0x0037);
+    if (p.size() != 3 || o.size() != 6) throw std::runtime_error(file.string() + ": no position or orientation");
+    out[uid] = {{p[0], p[1], p[2]}, {o[0], o[1], o[2], o[3], o[4], o[5]}};
+  }
+  return out;
+}
+
+void expectListedGeometry(std::vector<pacs::InstanceRecord> listed, const std::map<std::string, FileGeometry>& files) {
+  ASSERT_EQ(listed.size(), files.size());
+  for (const auto& instance : listed) {
+    const auto it = files.find(instance.sopInstanceUid);
+    ASSERT_NE(it, files.end()) << instance.sopInstanceUid;
+    ASSERT_TRUE(instance.position.has_value()) << instance.sopInstanceUid;
+    ASSERT_TRUE(instance.orientation.has_value()) << instance.sopInstanceUid;
+    for (std::size_t i = 0; i < 3; ++i) EXPECT_NEAR((*instance.position)[i], it->second.position[i], 1e-6);
+    for (std::size_t i = 0; i < 6; ++i) EXPECT_NEAR((*instance.orientation)[i], it->second.orientation[i], 1e-6);
+  }
+  pacs::sortForViewing(listed);
+  const auto& o = *listed.front().orientation;
+  const std::array<double, 3> n{o[1] * o[5] - o[2] * o[4], o[2] * o[3] - o[0] * o[5], o[0] * o[4] - o[1] * o[3]};
+  for (std::size_t i = 1; i < listed.size(); ++i) {
+    const auto& a = *listed[i - 1].position;
+    const auto& b = *listed[i].position;
+    EXPECT_LT(a[0] * n[0] + a[1] * n[1] + a[2] * n[2], b[0] * n[0] + b[1] * n[1] + b[2] * n[2]) << i;
   }
 }
 

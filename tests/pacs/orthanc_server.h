@@ -9,9 +9,13 @@
 
 #include <sys/types.h>
 
+#include <array>
 #include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
+
+#include "octoray/pacs/query.h"
 
 namespace octoray::test {
 
@@ -60,5 +64,17 @@ class OrthancServer {
   int dicomPort_ = 0;
   pid_t pid_ = -1;
 };
+
+// ImagePositionPatient and ImageOrientationPatient of each file, by SOPInstanceUID, read by
+// GDCM (what a PACS listing must answer for those instances).
+struct FileGeometry {
+  std::array<double, 3> position{};
+  std::array<double, 6> orientation{};
+};
+std::map<std::string, FileGeometry> geometryOfFiles(const std::vector<std::filesystem::path>& files);
+
+// Checks that every listed instance carries its file's geometry (to 1e-6 mm) and that
+// pacs::sortForViewing orders them along the slice normal.
+void expectListedGeometry(std::vector<pacs::InstanceRecord> listed, const std::map<std::string, FileGeometry>& files);
 
 }  // namespace octoray::test

@@ -84,3 +84,52 @@ class Orthanc:
                 self.process.kill()
                 self.process.wait()
         self.log.close()
+
+
+class SlowLink:
+    """An HTTP relay on 127.0.0.1 in front of a server, holding each WADO-RS instance answer
+    back by `delay` seconds: a PACS across a slow network, so that a test can look at the
+    viewer while a series is still arriving. Everything else passes unchanged (headers,
+    including the client's Authorization; status; body)."""
+
+    def __init__(self, target, delay):
+        import http.server
+        import threading
+        import urllib.error
+
+        link = self
+
+        class Relay(http.server.BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def do_GET(self):
+                headers = {k: v for k, v in self.headers.items() if k.lower() not in ("host", "connection")}
+                req = urllib.request.Request(target + self.path, headers=headers)
+                try:
+                    with urllib.request.urlopen(req, timeout=60) as r:
+                        status, reply, body = r.status, r.headers, r.read()
+                except urllib.error.HTTPError as e:
+                    status, reply, body = e.code, e.headers, e.read()
+                if "/instances/" in self.path:
+                    time.sleep(link.delay)
+                    link.instances += 1
+                self.send_response(status)
+                for k, v in reply.items():
+                    if k.lower() not in ("content-length", "transfer-encoding", "connection"):
+                        self.send_header(k, v)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args):
+                pass
+
+        self.delay, self.instances = delay, 0
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Relay)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def stop(self):
+        self.server.shutdown()
+        self.server.server_close()

@@ -13,6 +13,7 @@
 
 #include "memory_volume.h"
 #include "octoray/core/error.h"
+#include "octoray/dicom/formats.h"
 #include "octoray/dicom/synthetic_series.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/viewer/dataset.h"
@@ -377,6 +378,149 @@ TEST(ViewerDataset, UnreadableSliceIsNamedInTheWarnings) {
     return w.find(cut.string()) != std::string::npos;
   });
   EXPECT_TRUE(named) << ::testing::PrintToString(warnings);
+}
+
+// ---- a series arriving from a PACS -----------------------------------------------------------
+
+// The retrieval's way of landing a file: complete under a hidden name, then renamed.
+void land(const std::filesystem::path& from, const std::filesystem::path& to) {
+  const std::filesystem::path temporary = to.parent_path() / ("." + to.filename().string() + ".partial");
+  std::filesystem::copy_file(from, temporary, std::filesystem::copy_options::overwrite_existing);
+  std::filesystem::rename(temporary, to);
+}
+
+// The listing a PACS gives for `written` (positions and orientation as written), in slice
+// order, with the files to land in `folder`.
+std::shared_ptr<IncomingSeries> listingOf(const dicom::SyntheticSeries& written, const std::filesystem::path& folder) {
+  auto incoming = std::make_shared<IncomingSeries>();
+  incoming->folder = folder;
+  incoming->description = "arriving";
+  std::vector<dicom::SyntheticImage> slices = written.slices();
+  std::sort(slices.begin(), slices.end(), [](const auto& a, const auto& b) { return a.distanceMm < b.distanceMm; });
+  const Vec3 r = written.rowDirection, c = written.columnDirection;
+  for (const auto& s : slices) {
+    const Vec3 p = s.positionMm;
+    incoming->slices.push_back({folder / s.path.filename(), std::array<double, 3>{p.x, p.y, p.z},
+                                std::array<double, 6>{r.x, r.y, r.z, c.x, c.y, c.z}});
+  }
+  std::filesystem::create_directories(folder);
+  return incoming;
+}
+
+template <typename Done>
+bool waitFor(Done done, int seconds = 60) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(seconds);
+  while (!done()) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return true;
+}
+
+// One sample of the preview at index position q: a 1 x 1 view centred there.
+double previewAt(const PreviewVolume& preview, Vec3 q) {
+  SliceRequest req;
+  req.plane.right = {1, 0, 0};
+  req.plane.down = {0, 1, 0};
+  req.plane.normal = {0, 0, 1};
+  req.plane.mmPerPixel = 0.1;
+  req.plane.origin = preview.grid().patientFromIndex.transformPoint(q) - Vec3{0.05, 0.05, 0};
+  return preview.slice(req).hu.at(0);
+}
+
+// The slices of a series being retrieved appear in the preview as their files land, at the
+// place the server's listing gives them, with the values the import reads; the others stay
+// empty (NaN), never interpolated. The grid is the import's (a tilted stack: a shear), a slice
+// listed with another orientation stays out, and the import starts once the retrieval is
+// complete.
+TEST(ViewerDataset, AnIncomingSeriesShowsEachSliceAsItLands) {
+  const auto dir = test::freshTempDir("viewer_incoming");
+  dicom::SyntheticSeriesSpec spec;
+  spec.rows = 24;
+  spec.columns = 20;
+  spec.sliceCount = 12;
+  spec.tiltDegrees = 15;
+  spec.reverseFileOrder = true;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir / "source", spec);
+  auto incoming = listingOf(written, dir / "incoming");
+  // A localiser listed in the series: another orientation, never delivered.
+  incoming->slices.push_back({dir / "incoming/localizer.dcm", std::array<double, 3>{0, 0, 0},
+                              std::array<double, 6>{1, 0, 0, 0, 0, -1}});
+  Dataset dataset(incoming, dir / "cache");
+  EXPECT_EQ(dataset.state(), Dataset::State::Importing);
+  EXPECT_EQ(dataset.preview(), nullptr);  // nothing has landed
+
+  for (std::size_t s = 0; s < 5; ++s) land(dir / "source" / incoming->slices[s].file.filename(), incoming->slices[s].file);
+  ASSERT_TRUE(waitFor([&] { return dataset.preview() && dataset.preview()->fraction() >= 5.0 / 12; }))
+      << dataset.status() << " " << ::testing::PrintToString(dataset.warnings());
+  EXPECT_EQ(dataset.state(), Dataset::State::Importing);
+  EXPECT_NE(dataset.status().find("retrieving"), std::string::npos) << dataset.status();
+  const PreviewVolume& preview = *dataset.preview();
+  EXPECT_DOUBLE_EQ(preview.fraction(), 5.0 / 12);
+
+  // The grid is the one the import of the whole series makes.
+  auto source = openVolume((dir / "source").string());
+  const VolumeInfo& info = source->info();
+  ASSERT_EQ(preview.grid().dims, info.dims);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 4; ++c) EXPECT_NEAR(preview.grid().patientFromIndex.m[r][c], info.patientFromIndex.m[r][c], 1e-6);
+  }
+  // Landed slices hold the import's values (between two landed slices: their interpolation).
+  std::vector<float> slab(static_cast<std::size_t>(info.sliceSamples() * info.dims[2]));
+  source->readSlab(0, info.dims[2], slab);
+  auto value = [&](int64_t i, int64_t j, int64_t k) {
+    return static_cast<double>(slab[static_cast<std::size_t>((k * info.dims[1] + j) * info.dims[0] + i)]);
+  };
+  for (int64_t k = 0; k < 4; ++k) {
+    for (const auto& [i, j] : {std::pair{3, 5}, std::pair{10, 17}, std::pair{19, 0}}) {
+      EXPECT_NEAR(previewAt(preview, {static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}), value(i, j, k), 1e-3)
+          << i << "," << j << "," << k;
+    }
+    const double half = previewAt(preview, {7, 9, k + 0.5});
+    EXPECT_NEAR(half, 0.5 * (value(7, 9, k) + value(7, 9, k + 1)), 1e-3);
+  }
+  // Slices not landed yet are empty, and so is the gap between the last landed one and them.
+  EXPECT_TRUE(std::isnan(previewAt(preview, {7, 9, 4.5})));
+  EXPECT_TRUE(std::isnan(previewAt(preview, {7, 9, 8})));
+  EXPECT_TRUE(std::isnan(previewAt(preview, {7, 9, 11})));
+
+  // The last slice lands before the middle ones: it shows alone.
+  land(dir / "source" / incoming->slices[11].file.filename(), incoming->slices[11].file);
+  ASSERT_TRUE(waitFor([&] { return preview.fraction() >= 6.0 / 12; }));
+  EXPECT_TRUE(std::isnan(previewAt(preview, {7, 9, 10.5})));
+  EXPECT_NEAR(previewAt(preview, {7, 9, 11}), value(7, 9, 11), 1e-3);
+
+  // The rest arrives; the retrieval says it is complete; the import runs and reuses nothing.
+  for (std::size_t s = 5; s < 11; ++s) land(dir / "source" / incoming->slices[s].file.filename(), incoming->slices[s].file);
+  EXPECT_EQ(dataset.state(), Dataset::State::Importing);  // not before the retrieval ends
+  incoming->state = IncomingSeries::State::Complete;
+  ASSERT_TRUE(waitFor([&] { return dataset.state() != Dataset::State::Importing; }, 120)) << dataset.status();
+  ASSERT_EQ(dataset.state(), Dataset::State::Ready) << dataset.error();
+  EXPECT_DOUBLE_EQ(preview.fraction(), 1.0);
+  ASSERT_NE(dataset.store(), nullptr);
+  EXPECT_EQ(dataset.store()->header().dims[2], 12);
+}
+
+// A retrieval that fails is the dataset's error; a listing whose slices are unevenly spaced
+// gets no preview (the import's resampling decides the grid), and says why.
+TEST(ViewerDataset, AnIncomingSeriesThatFailsOrIsUnevenSaysSo) {
+  const auto dir = test::freshTempDir("viewer_incoming_bad");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceDistancesMm = {0, 1, 2, 4, 5};
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir / "source", spec);
+  auto incoming = listingOf(written, dir / "incoming");
+  Dataset dataset(incoming, dir / "cache");
+  land(dir / "source" / incoming->slices[0].file.filename(), incoming->slices[0].file);
+  ASSERT_TRUE(waitFor([&] { return !dataset.warnings().empty(); })) << dataset.status();
+  EXPECT_NE(dataset.warnings().front().find("no preview while the series arrives: the slices are not evenly spaced (gaps 1.000 to 2.000 mm)"),
+            std::string::npos)
+      << dataset.warnings().front();
+  EXPECT_EQ(dataset.preview(), nullptr);
+  incoming->fail("dicom://PACS@127.0.0.1:4242: the association was aborted");
+  ASSERT_TRUE(waitFor([&] { return dataset.state() != Dataset::State::Importing; }));
+  EXPECT_EQ(dataset.state(), Dataset::State::Failed);
+  EXPECT_NE(dataset.error().find("the association was aborted"), std::string::npos) << dataset.error();
+  EXPECT_NE(dataset.error().find((dir / "incoming").string()), std::string::npos) << dataset.error();
 }
 
 }  // namespace

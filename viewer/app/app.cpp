@@ -230,7 +230,7 @@ std::filesystem::path App::cacheDir() const {
   return options_.cacheDir.empty() ? defaultCacheDir() : options_.cacheDir;
 }
 
-void App::open(const std::string& path) {
+void App::resetForDataset(const std::string& source) {
   mpr_ = {};
   view3d_.reset();
   slicer_.reset();
@@ -238,20 +238,42 @@ void App::open(const std::string& path) {
   dataset_.reset();
   histogram_.clear();
   crosshairSet_ = datasetFailedOpen_ = datasetErrorShown_ = false;
-  session.source = path;
+  session.source = source;
   session.measurements.clear();
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
+}
+
+void App::open(const std::string& path) {
+  resetForDataset(path);
   try {
     dataset_ = std::make_unique<Dataset>(path, cacheDir());
   } catch (const std::exception& e) {
     messages.push_back(e.what());
     return;
   }
+  addRecent(path);
+}
+
+void App::openIncoming(std::shared_ptr<IncomingSeries> incoming) {
+  const std::string folder = incoming->folder.string();
+  resetForDataset(folder);
+  dataset_ = std::make_unique<Dataset>(std::move(incoming), cacheDir());
+  addRecent(folder);
+}
+
+void App::addRecent(const std::string& path) {
   recent_.erase(std::remove(recent_.begin(), recent_.end(), path), recent_.end());
   recent_.insert(recent_.begin(), path);
   if (recent_.size() > 10) recent_.resize(10);
   saveRecent();
+}
+
+double App::previewFraction() const {
+  if (!dataset_) return 0;
+  if (slicer_) return 1;
+  const PreviewVolume* preview = dataset_->preview();
+  return preview ? preview->fraction() : 0;
 }
 
 void App::onDatasetReady() {

@@ -203,6 +203,8 @@ class App {
   const MprView* mprView(ViewId v) const;
   void markInteraction();  // a control moved: interactive quality for a few frames
   void open(const std::string& path);
+  // A series still arriving from a PACS: its slices appear as they land (dataset.h).
+  void openIncoming(std::shared_ptr<IncomingSeries> incoming);
   // Where imported stores and retrieved PACS series are kept.
   std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
@@ -237,12 +239,18 @@ class App {
   ImFont* overlayFont() const { return overlayFont_; }
   bool hidePatientInfo() const { return hidePatientInfo_; }
   bool converged() const;
+  // The share of the open dataset's preview slices that are in (1 once the store is open; 0
+  // before anything is).
+  double previewFraction() const;
   nlohmann::json stateJson();
 
  private:
   void frame();
   void layoutViews();
   void onDatasetReady();
+  // Forgets what was open and starts on `source` (recent files, timers, views).
+  void resetForDataset(const std::string& source);
+  void addRecent(const std::string& path);
   void runScript();
   std::optional<std::array<double, 2>> resolve(const ScriptPosition& p) const;
   void queue(const InputEvent& e) { events_.push_back(e); }

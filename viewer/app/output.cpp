@@ -59,7 +59,9 @@ nlohmann::json App::stateJson() {
                                                                              : "importing"},
                     {"store", dataset_->storePath()},
                     {"reusedCache", dataset_->reusedCache()},
-                    {"progress", dataset_->progress()}};
+                    {"progress", dataset_->progress()},
+                    {"status", dataset_->status()},
+                    {"previewFraction", previewFraction()}};
   }
   nlohmann::json views = nlohmann::json::object();
   for (int v = 0; v < kViewCount; ++v) {

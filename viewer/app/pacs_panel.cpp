@@ -135,23 +135,51 @@ void PacsPanel::startRetrieve(App& app, const std::string& studyUid, const std::
   if (busy()) return;
   const PacsServer server = current();
   const fs::path folder = app.cacheDir() / "pacs" / studyUid / seriesUid;
+  std::string description;
   {
     std::lock_guard lock(mutex_);
     error_.clear();
+    incoming_.reset();
+    for (const auto& s : series_) {
+      if (s.seriesInstanceUid == seriesUid) description = s.seriesDescription;
+    }
   }
+  incomingOpened_ = false;
   done_ = 0;
   total_ = 0;
   jobName_ = "retrieving";
-  job_ = std::async(std::launch::async, [this, server, studyUid, seriesUid, folder] {
+  job_ = std::async(std::launch::async, [this, server, studyUid, seriesUid, folder, description] {
+    std::shared_ptr<IncomingSeries> incoming;
     try {
       auto connection = pacs::connectPacs(server.url, optionsFor(server));
-      pacs::retrieveSeriesInto(*connection, studyUid, seriesUid, folder, [this](int64_t done, int64_t total) {
+      pacs::RetrieveRequest request;
+      request.source = connection->describe();
+      request.studyInstanceUid = studyUid;
+      request.seriesInstanceUid = seriesUid;
+      request.instances = connection->findInstances(studyUid, seriesUid);
+      pacs::sortForViewing(request.instances);
+      request.folder = folder;
+      // What the viewer shows while the files arrive: every slice's place, from the listing.
+      incoming = std::make_shared<IncomingSeries>();
+      incoming->folder = folder;
+      incoming->description = description;
+      for (const auto& i : request.instances) {
+        incoming->slices.push_back({folder / pacs::instanceFileName(i.sopInstanceUid), i.position, i.orientation});
+      }
+      {
+        std::lock_guard lock(mutex_);
+        incoming_ = incoming;
+      }
+      request.progress = [this](int64_t done, int64_t total) {
         done_ = done;
         total_ = total;
+      };
+      pacs::retrieveSeries(request, [&](const std::vector<std::string>& uids, const pacs::InstanceSink& sink) {
+        connection->fetch(studyUid, seriesUid, uids, sink);
       });
-      std::lock_guard lock(mutex_);
-      retrieved_ = folder;
+      incoming->state = IncomingSeries::State::Complete;
     } catch (const std::exception& e) {
+      if (incoming) incoming->fail(e.what());
       std::lock_guard lock(mutex_);
       error_ = e.what();
     }
@@ -159,15 +187,21 @@ void PacsPanel::startRetrieve(App& app, const std::string& studyUid, const std::
 }
 
 void PacsPanel::poll(App& app) {
-  if (!job_.valid() || busy()) return;
-  job_.get();
-  fs::path open;
+  std::shared_ptr<IncomingSeries> open;
   {
     std::lock_guard lock(mutex_);
-    if (!error_.empty()) app.messages.push_back(error_);
-    open.swap(retrieved_);
+    if (incoming_ && !incomingOpened_) open = incoming_;
   }
-  if (!open.empty()) app.open(open.string());
+  if (open) {
+    incomingOpened_ = true;
+    app.openIncoming(std::move(open));
+  }
+  if (!job_.valid() || busy()) return;
+  job_.get();
+  std::lock_guard lock(mutex_);
+  // A failed retrieval whose series is open is reported by the dataset (in the window).
+  if (!error_.empty() && !incomingOpened_) app.messages.push_back(error_);
+  incoming_.reset();
 }
 
 void PacsPanel::action(App& app, const std::string& name, const nlohmann::json& value) {

@@ -3,8 +3,10 @@
 // a credentials file is kept, never a secret), a study query (patient ID, name, accession
 // number, study date range, modality), the studies and series found, and "Retrieve and open":
 // the series is retrieved in the background into the cache folder (resumably, pacs/retrieve.h)
-// with a progress bar, then opened as any DICOM folder (MPR from the files at once, the 3D
-// view when its store is built). Network work never runs on the render thread.
+// with a progress bar, in order along the slice normal, and opened as soon as the server has
+// listed its instances: each slice appears in the MPR views as its file lands (dataset.h's
+// IncomingSeries), the import starts when the last one has, and the 3D view when its store
+// is built. Network work never runs on the render thread.
 
 #include <atomic>
 #include <cstdint>
@@ -17,6 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include "octoray/pacs/query.h"
+#include "octoray/viewer/dataset.h"
 
 namespace octoray::viewer {
 
@@ -70,7 +73,8 @@ class PacsPanel {
   std::vector<pacs::SeriesRecord> series_;
   std::string seriesOfStudy_;
   std::string error_;
-  std::filesystem::path retrieved_;  // set by a finished retrieval, opened by poll()
+  std::shared_ptr<IncomingSeries> incoming_;  // listed by a retrieval, opened by poll()
+  bool incomingOpened_ = false;                 // the running retrieval's series is open
   std::atomic<int64_t> done_{0}, total_{0};
 };
 

@@ -37,9 +37,13 @@ void App::runScript() {
   while (scriptStep_ < script_.size()) {
     const ScriptStep& s = script_[scriptStep_];
     if (waiting_) {
-      if (!converged()) {
+      if (s.type == ScriptStep::Type::WaitPreview ? previewFraction() < s.fraction : !converged()) {
         if (secondsSince(waitStart_) > s.timeoutSeconds) {
-          throw Error(options_.script, fmt::format("script step {}: not converged after {} s", scriptStep_, s.timeoutSeconds));
+          throw Error(options_.script,
+                      s.type == ScriptStep::Type::WaitPreview
+                          ? fmt::format("script step {}: the preview holds {:.0f} % of the slices after {} s, not {:.0f} %",
+                                        scriptStep_, 100 * previewFraction(), s.timeoutSeconds, 100 * s.fraction)
+                          : fmt::format("script step {}: not converged after {} s", scriptStep_, s.timeoutSeconds));
         }
         return;
       }
@@ -124,6 +128,7 @@ void App::runScript() {
         break;
       case ScriptStep::Type::Action: action(s.name, s.value); break;
       case ScriptStep::Type::WaitConverged:
+      case ScriptStep::Type::WaitPreview:
         waiting_ = true;
         waitStart_ = std::chrono::steady_clock::now();
         return;

@@ -6,10 +6,12 @@
 #include <tbb/parallel_for.h>
 #include <xxhash.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <limits>
+#include <map>
 
 #include "octoray/core/error.h"
 #include "octoray/core/paths.h"
@@ -52,7 +54,7 @@ std::string storeCacheKey(VolumeSource& source) {
 // ---- PreviewVolume -------------------------------------------------------------------------
 
 PreviewVolume::PreviewVolume(const VolumeInfo& info, uint64_t budgetBytes)
-    : grid_(info.dims, info.patientFromIndex) {
+    : grid_(info.dims, info.patientFromIndex), sourceDims_(info.dims) {
   auto previewDims = [&](int f) {
     return std::array<int64_t, 3>{(info.dims[0] + f - 1) / f, (info.dims[1] + f - 1) / f,
                                   (info.dims[2] + f - 1) / f};
@@ -65,6 +67,46 @@ PreviewVolume::PreviewVolume(const VolumeInfo& info, uint64_t budgetBytes)
   }
   values_.assign(static_cast<std::size_t>(dims_[0] * dims_[1] * dims_[2]),
                  std::numeric_limits<float>::quiet_NaN());
+  sliceDone_ = std::make_unique<std::atomic<bool>[]>(static_cast<std::size_t>(dims_[2]));
+}
+
+void PreviewVolume::publish(int64_t pk) {
+  sliceDone_[static_cast<std::size_t>(pk)].store(true, std::memory_order_release);
+  slicesDone_.fetch_add(1, std::memory_order_acq_rel);
+}
+
+void PreviewVolume::addSlice(int64_t k, std::span<const float> values) {
+  const auto& d = sourceDims_;
+  if (k < 0 || k >= d[2] || values.size() != static_cast<std::size_t>(d[0] * d[1])) return;
+  if (sourceSeen_.empty()) {
+    sourceSeen_.assign(static_cast<std::size_t>(d[2]), 0);
+    sourcesIn_.assign(static_cast<std::size_t>(dims_[2]), 0);
+    partialSums_.resize(static_cast<std::size_t>(dims_[2]));
+  }
+  if (sourceSeen_[static_cast<std::size_t>(k)]) return;
+  sourceSeen_[static_cast<std::size_t>(k)] = 1;
+  const int64_t f = factor_, pk = k / f;
+  std::vector<double>& sum = partialSums_[static_cast<std::size_t>(pk)];
+  if (sum.empty()) sum.assign(static_cast<std::size_t>(dims_[0] * dims_[1]), 0.0);
+  for (int64_t j = 0; j < d[1]; ++j) {
+    for (int64_t i = 0; i < d[0]; ++i) {
+      sum[static_cast<std::size_t>((j / f) * dims_[0] + i / f)] += values[static_cast<std::size_t>(j * d[0] + i)];
+    }
+  }
+  const int64_t sources = std::min<int64_t>(f, d[2] - pk * f);
+  if (++sourcesIn_[static_cast<std::size_t>(pk)] < sources) return;
+  // The box filter's weights: the source samples that fell in each preview sample.
+  float* out = values_.data() + static_cast<std::size_t>(pk * dims_[0] * dims_[1]);
+  for (int64_t pj = 0; pj < dims_[1]; ++pj) {
+    const int64_t rows = std::min<int64_t>(f, d[1] - pj * f);
+    for (int64_t pi = 0; pi < dims_[0]; ++pi) {
+      const int64_t columns = std::min<int64_t>(f, d[0] - pi * f);
+      const std::size_t p = static_cast<std::size_t>(pj * dims_[0] + pi);
+      out[p] = static_cast<float>(sum[p] / static_cast<double>(rows * columns * sources));
+    }
+  }
+  std::vector<double>().swap(sum);
+  publish(pk);
 }
 
 void PreviewVolume::fill(VolumeSource& source, const std::atomic<bool>& cancel) {
@@ -89,7 +131,7 @@ void PreviewVolume::fill(VolumeSource& source, const std::atomic<bool>& cancel) 
     }
     float* out = values_.data() + static_cast<std::size_t>(pk * dims_[0] * dims_[1]);
     for (std::size_t p = 0; p < sum.size(); ++p) out[p] = static_cast<float>(sum[p] / std::max(1, count[p]));
-    slicesDone_.store(pk + 1, std::memory_order_release);
+    publish(pk);
   }
 }
 
@@ -98,7 +140,6 @@ double PreviewVolume::fraction() const {
 }
 
 double PreviewVolume::sample(Vec3 q) const {
-  const int64_t done = slicesDone_.load(std::memory_order_acquire);
   std::array<int64_t, 3> i0{};
   std::array<double, 3> t{};
   for (int a = 0; a < 3; ++a) {
@@ -110,8 +151,15 @@ double PreviewVolume::sample(Vec3 q) const {
     i0[static_cast<std::size_t>(a)] = static_cast<int64_t>(fl);
     t[static_cast<std::size_t>(a)] = std::clamp(p - fl, 0.0, 1.0);
   }
+  // Both slices around the sample must be in, unless one has no weight: a sample on a slice
+  // (to 1e-6 of the spacing, which the patient-to-index round trip may miss it by).
+  constexpr double kOnSlice = 1e-6;
+  if (t[2] < kOnSlice) t[2] = 0.0;
+  if (t[2] > 1.0 - kOnSlice) t[2] = 1.0;
   const int64_t z1 = std::min(i0[2] + 1, dims_[2] - 1);
-  if (z1 >= done) return std::numeric_limits<double>::quiet_NaN();
+  const bool z0In = t[2] == 1.0 || sliceDone_[static_cast<std::size_t>(i0[2])].load(std::memory_order_acquire);
+  const bool z1In = t[2] == 0.0 || sliceDone_[static_cast<std::size_t>(z1)].load(std::memory_order_acquire);
+  if (!z0In || !z1In) return std::numeric_limits<double>::quiet_NaN();
   auto at = [&](int64_t x, int64_t y, int64_t z) {
     x = std::min(x, dims_[0] - 1);
     y = std::min(y, dims_[1] - 1);
@@ -120,11 +168,14 @@ double PreviewVolume::sample(Vec3 q) const {
   };
   const int64_t x = i0[0], y = i0[1], z = i0[2];
   const double fx = t[0], fy = t[1], fz = t[2];
-  const double c0 = (at(x, y, z) * (1 - fx) + at(x + 1, y, z) * fx) * (1 - fy) +
-                    (at(x, y + 1, z) * (1 - fx) + at(x + 1, y + 1, z) * fx) * fy;
-  const double c1 = (at(x, y, z + 1) * (1 - fx) + at(x + 1, y, z + 1) * fx) * (1 - fy) +
-                    (at(x, y + 1, z + 1) * (1 - fx) + at(x + 1, y + 1, z + 1) * fx) * fy;
-  return c0 * (1 - fz) + c1 * fz;
+  // A slice without weight is not read: it may not be in yet.
+  auto plane = [&](int64_t zz) {
+    return (at(x, y, zz) * (1 - fx) + at(x + 1, y, zz) * fx) * (1 - fy) +
+           (at(x, y + 1, zz) * (1 - fx) + at(x + 1, y + 1, zz) * fx) * fy;
+  };
+  if (fz == 0.0) return plane(z);
+  if (fz == 1.0) return plane(z + 1);
+  return plane(z) * (1 - fz) + plane(z + 1) * fz;
 }
 
 Slice PreviewVolume::slice(const SliceRequest& req) const {
@@ -166,6 +217,91 @@ Slice PreviewVolume::slice(const SliceRequest& req) const {
   return out;
 }
 
+// ---- IncomingSeries ------------------------------------------------------------------------
+
+namespace {
+
+Vec3 toVec3(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
+
+std::array<long long, 6> orientationKey(const std::array<double, 6>& o) {
+  std::array<long long, 6> key{};
+  for (std::size_t i = 0; i < 6; ++i) key[i] = std::llround(o[i] * 1e4);
+  return key;
+}
+
+}  // namespace
+
+std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& firstFile,
+                                         std::string& why) {
+  // The majority orientation: other slices (a localiser listed with the series) stay out.
+  std::map<std::array<long long, 6>, int> votes;
+  std::optional<std::array<double, 6>> orientation;
+  int best = 0;
+  for (const auto& s : series.slices) {
+    if (!s.position || !s.orientation) continue;
+    const int n = ++votes[orientationKey(*s.orientation)];
+    if (n > best) best = n, orientation = s.orientation;
+  }
+  if (!orientation) {
+    why = "the PACS did not list the slices' positions";
+    return std::nullopt;
+  }
+  const Vec3 row = normalize(Vec3{(*orientation)[0], (*orientation)[1], (*orientation)[2]});
+  const Vec3 column = normalize(Vec3{(*orientation)[3], (*orientation)[4], (*orientation)[5]});
+  const Vec3 normal = normalize(cross(row, column));
+  std::vector<std::pair<double, std::size_t>> along;
+  for (std::size_t i = 0; i < series.slices.size(); ++i) {
+    const auto& s = series.slices[i];
+    if (s.position && s.orientation && orientationKey(*s.orientation) == orientationKey(*orientation)) {
+      along.emplace_back(dot(toVec3(*s.position), normal), i);
+    }
+  }
+  std::sort(along.begin(), along.end());
+  const std::size_t n = along.size();
+  if (n < 2) {
+    why = "the series lists fewer than two slices of one orientation";
+    return std::nullopt;
+  }
+  std::vector<double> gaps;
+  for (std::size_t i = 1; i < n; ++i) gaps.push_back(along[i].first - along[i - 1].first);
+  std::vector<double> sorted = gaps;
+  std::sort(sorted.begin(), sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  const double tolerance = std::max(0.01, 0.01 * median);  // as the stack's "uniform" test
+  if (!(sorted.front() > 1e-3) || sorted.back() - sorted.front() > tolerance) {
+    why = fmt::format("the slices are not evenly spaced (gaps {:.3f} to {:.3f} mm)", sorted.front(), sorted.back());
+    return std::nullopt;
+  }
+  // Evenly spaced along the normal and on one line (a tilted stack is a shear).
+  const Vec3 first = toVec3(*series.slices[along.front().second].position);
+  const Vec3 step = (1.0 / static_cast<double>(n - 1)) * (toVec3(*series.slices[along.back().second].position) - first);
+  for (std::size_t k = 0; k < n; ++k) {
+    const Vec3 expected = first + static_cast<double>(k) * step;
+    if (length(toVec3(*series.slices[along[k].second].position) - expected) > tolerance) {
+      why = fmt::format("slice {} is {:.3f} mm off the line through the first and last", k,
+                        length(toVec3(*series.slices[along[k].second].position) - expected));
+      return std::nullopt;
+    }
+  }
+  // The in-plane columns from a file that arrived; its rows and columns must be the listing's.
+  const Vec3 c0 = firstFile.patientFromIndex.column(0), c1 = firstFile.patientFromIndex.column(1);
+  if (firstFile.dims[2] != 1 || dot(normalize(c0), row) < 0.9999 || dot(normalize(c1), column) < 0.9999) {
+    why = "the first file that arrived is not one slice of the listed orientation";
+    return std::nullopt;
+  }
+  IncomingGrid grid;
+  grid.info = firstFile;
+  grid.info.dims = {firstFile.dims[0], firstFile.dims[1], static_cast<int64_t>(n)};
+  grid.info.patientFromIndex = Mat4::fromColumns(c0, c1, step, first);
+  grid.info.sourcePath = series.folder.string();
+  grid.info.sourceFiles.clear();
+  grid.info.warnings.clear();
+  grid.info.description = series.description.empty() ? firstFile.description : series.description;
+  grid.indexOfSlice.assign(series.slices.size(), -1);
+  for (std::size_t k = 0; k < n; ++k) grid.indexOfSlice[along[k].second] = static_cast<int64_t>(k);
+  return grid;
+}
+
 // ---- Dataset -------------------------------------------------------------------------------
 
 Dataset::Dataset(const std::string& path, const fs::path& cacheDir) : path_(path), cacheDir_(cacheDir) {
@@ -195,6 +331,78 @@ Dataset::Dataset(const std::string& path, const fs::path& cacheDir) : path_(path
   import_ = std::thread([this] { importThread(); });
 }
 
+Dataset::Dataset(std::shared_ptr<IncomingSeries> incoming, const fs::path& cacheDir)
+    : path_(incoming->folder.string()), cacheDir_(cacheDir), incoming_(std::move(incoming)) {
+  status_ = "retrieving";
+  info_.description = incoming_->description;
+  info_.sourcePath = path_;
+  import_ = std::thread([this] { importThread(); });
+}
+
+bool Dataset::receive() {
+  IncomingSeries& in = *incoming_;
+  const std::size_t total = in.slices.size();
+  slicesTotal_ = static_cast<int64_t>(total);
+  std::vector<uint8_t> seen(total, 0);
+  std::optional<IncomingGrid> grid;
+  PreviewVolume* preview = nullptr;
+  bool gridTried = false;
+  int64_t arrived = 0;
+  std::vector<float> values;
+  while (!cancel_) {
+    // Read before looking: every file that landed before the retrieval said "complete" is seen.
+    const IncomingSeries::State state = in.state.load();
+    for (std::size_t s = 0; s < total && !cancel_; ++s) {
+      std::error_code ec;
+      if (seen[s] || !fs::is_regular_file(in.slices[s].file, ec)) continue;
+      seen[s] = 1;
+      slicesDone_ = ++arrived;
+      try {
+        auto source = openVolume(in.slices[s].file.string());
+        const VolumeInfo& one = source->info();
+        if (!gridTried) {
+          gridTried = true;
+          std::string why;
+          grid = incomingGrid(in, one, why);
+          if (!grid) {
+            std::lock_guard lock(mutex_);
+            warnings_.push_back("no preview while the series arrives: " + why);
+            continue;
+          }
+          auto made = std::make_unique<PreviewVolume>(grid->info, uint64_t{256} << 20);
+          preview = made.get();
+          std::lock_guard lock(mutex_);
+          info_ = grid->info;
+          preview_ = std::move(made);
+        }
+        const int64_t k = grid ? grid->indexOfSlice[s] : -1;
+        if (k < 0 || one.dims != std::array<int64_t, 3>{grid->info.dims[0], grid->info.dims[1], 1}) continue;
+        // Where the file says it is must be where the listing put it.
+        const Vec3 expected = grid->info.patientFromIndex.transformPoint({0, 0, static_cast<double>(k)});
+        if (length(one.patientFromIndex.transformPoint({0, 0, 0}) - expected) > 0.05) continue;
+        values.resize(static_cast<std::size_t>(one.sliceSamples()));
+        source->readSlab(0, 1, values);
+        preview->addSlice(k, values);
+      } catch (const std::exception&) {
+        // A file the preview cannot show; the import of the whole folder names it.
+      }
+    }
+    if (state == IncomingSeries::State::Complete) return true;
+    if (state == IncomingSeries::State::Failed) {
+      std::lock_guard lock(mutex_);
+      error_ = in.error;
+      if (error_.find(path_) == std::string::npos) error_ = path_ + ": " + error_;
+      state_ = State::Failed;
+      return false;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(40));
+  }
+  std::lock_guard lock(mutex_);
+  error_ = path_ + ": retrieval cancelled";
+  state_ = State::Failed;
+  return false;
+}
+
 Dataset::~Dataset() {
   cancel_ = true;
   if (import_.joinable()) import_.join();
@@ -203,12 +411,17 @@ Dataset::~Dataset() {
 
 void Dataset::importThread() {
   try {
+    if (incoming_ && !receive()) return;
+    {
+      std::lock_guard lock(mutex_);
+      status_ = "reading headers";
+    }
     auto source = openVolume(path_);
     const VolumeInfo info = source->info();
     {
       std::lock_guard lock(mutex_);
       info_ = info;
-      warnings_ = info.warnings;
+      warnings_.insert(warnings_.end(), info.warnings.begin(), info.warnings.end());
       status_ = "hashing";
     }
     slicesTotal_ = info.dims[2];
@@ -232,13 +445,15 @@ void Dataset::importThread() {
         // No identity to show; the import itself reports what is wrong with the files.
       }
     }
-    // The preview reads its own copy of the source while the import reads this one.
-    auto preview = std::make_unique<PreviewVolume>(info, uint64_t{256} << 20);
+    // The preview reads its own copy of the source while the import reads this one (a series
+    // that arrived from a PACS has its preview already).
+    bool previewMade = false;
     {
       std::lock_guard lock(mutex_);
-      preview_ = std::move(preview);
+      previewMade = preview_ != nullptr;
+      if (!previewMade) preview_ = std::make_unique<PreviewVolume>(info, uint64_t{256} << 20);
     }
-    previewThread_ = std::thread([this] {
+    if (!previewMade) previewThread_ = std::thread([this] {
       try {
         auto second = openVolume(path_);
         preview_->fill(*second, cancel_);
@@ -308,6 +523,9 @@ std::string Dataset::status() const {
   std::lock_guard lock(mutex_);
   if (state_ == State::Importing && status_ == "importing") {
     return fmt::format("importing {}/{} slices", slicesDone_.load(), slicesTotal_.load());
+  }
+  if (state_ == State::Importing && status_ == "retrieving") {
+    return fmt::format("retrieving {}/{} slices", slicesDone_.load(), slicesTotal_.load());
   }
   return status_;
 }

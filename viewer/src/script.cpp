@@ -97,13 +97,15 @@ std::vector<ScriptStep> parseScript(const json& root, const std::string& path) {
       {"drag", ScriptStep::Type::Drag},          {"wheel", ScriptStep::Type::Wheel},
       {"key", ScriptStep::Type::Key},            {"action", ScriptStep::Type::Action},
       {"wait-converged", ScriptStep::Type::WaitConverged},
+      {"wait-preview", ScriptStep::Type::WaitPreview},
       {"screenshot", ScriptStep::Type::Screenshot},
       {"save-session", ScriptStep::Type::SaveSession},
       {"load-session", ScriptStep::Type::LoadSession},
       {"dump-state", ScriptStep::Type::DumpState},   {"quit", ScriptStep::Type::Quit}};
   static const std::set<std::string> kKnown{"type", "wait", "at", "from", "to", "button", "mods",
                                             "steps", "double", "dy", "key", "name", "value",
-                                            "path", "view", "patientInfo", "timeout"};
+                                            "path", "view", "patientInfo", "timeout",
+                                            "fraction"};
   std::vector<ScriptStep> out;
   for (std::size_t i = 0; i < events->size(); ++i) {
     const json& e = (*events)[i];
@@ -161,6 +163,14 @@ std::vector<ScriptStep> parseScript(const json& root, const std::string& path) {
         s.name = n.get<std::string>();
         if (e.contains("value")) s.value = e["value"];
         break;
+      }
+      case ScriptStep::Type::WaitPreview: {
+        const json& f = need("fraction");
+        if (!f.is_number() || !(f.get<double>() > 0 && f.get<double>() <= 1)) {
+          r.fail("\"fraction\": expected a share of the slices in (0, 1]");
+        }
+        s.fraction = f.get<double>();
+        [[fallthrough]];
       }
       case ScriptStep::Type::WaitConverged:
         if (e.contains("timeout")) {

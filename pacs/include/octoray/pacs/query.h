@@ -2,7 +2,9 @@
 // What a PACS query asks and answers, the same for DICOMweb (QIDO-RS) and DIMSE (C-FIND):
 // a study-level filter, and the studies, series and instances found.
 
+#include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,6 +57,17 @@ struct InstanceRecord {
   std::string sopInstanceUid;
   std::string sopClassUid;
   int64_t instanceNumber = -1;
+  // ImagePositionPatient and ImageOrientationPatient, where the server answers them (both are
+  // instance-level keys PACS index, Orthanc and dcm4chee among them): they place each slice
+  // before its pixels arrive, so a viewer can show the series while it is retrieved.
+  std::optional<std::array<double, 3>> position;
+  std::optional<std::array<double, 6>> orientation;
 };
+
+// Orders `instances` along the slice normal (the majority orientation's; instances of another
+// orientation or without a position go last, by InstanceNumber) so that a retrieval delivers a
+// stack from one end to the other; without positions, by InstanceNumber (ties keep the
+// server's order).
+void sortForViewing(std::vector<InstanceRecord>& instances);
 
 }  // namespace octoray::pacs

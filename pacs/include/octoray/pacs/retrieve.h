@@ -45,6 +45,9 @@ struct RetrieveReport {
 
 inline constexpr const char* kRetrievedRecordName = ".octoray-retrieved.json";
 
+// The name an instance's file has in the folder once it is complete: "<SOPInstanceUID>.dcm".
+std::string instanceFileName(const std::string& sopInstanceUid);
+
 // Retrieves the missing instances of `request` through `fetch`. Throws octoray::Error naming
 // the folder or the server when the series is not complete at the end (instances missing,
 // one delivered that was not asked for or fails verification); what was complete stays for

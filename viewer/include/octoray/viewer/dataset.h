@@ -6,12 +6,19 @@
 // runs. A store already imported is reused: stores are named by a key made of the series UID,
 // the grid (dimensions and index-to-patient affine) and a hash of the first, middle and last
 // slices' samples — not by the path the data came from.
+//
+// A series retrieved from a PACS opens while it arrives (Dataset(IncomingSeries)): the
+// server's instance list gives every slice's position before its pixels come, so the preview
+// has the series' whole grid at once and each slice appears in the MPR views as its file
+// lands; the import starts when the last one has.
 
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -42,18 +49,68 @@ class PreviewVolume {
   // Reads the whole source slab by slab (on the calling thread: the preview thread) until
   // done or `cancel` is set; slices become visible as they are filled.
   void fill(VolumeSource& source, const std::atomic<bool>& cancel);
+  // Adds source slice `k` (dims[0] x dims[1] values), in any order, from one thread; a
+  // preview slice becomes visible once all the source slices it averages have come.
+  void addSlice(int64_t k, std::span<const float> values);
   // A slice like StoreSlicer::slice (level ignored); NaN where the preview has no data yet.
   Slice slice(const SliceRequest& request) const;
   double fraction() const;
 
  private:
   double sample(Vec3 leafIndex) const;  // NaN outside or not yet read
+  void publish(int64_t previewSlice);    // the slice's values are final: let readers see it
   Grid grid_;
+  std::array<int64_t, 3> sourceDims_{1, 1, 1};
   int factor_ = 1;
   std::array<int64_t, 3> dims_{1, 1, 1};
   std::vector<float> values_;
-  std::atomic<int64_t> slicesDone_{0};  // preview slices complete
+  std::unique_ptr<std::atomic<bool>[]> sliceDone_;  // per preview slice
+  std::atomic<int64_t> slicesDone_{0};              // how many are done
+  // addSlice(): which source slices came, and the sums of preview slices still incomplete.
+  std::vector<uint8_t> sourceSeen_;
+  std::vector<int> sourcesIn_;
+  std::vector<std::vector<double>> partialSums_;
 };
+
+// A series on its way into `folder` (one file per slice, under its final name only once
+// complete): what the PACS listed, and how the retrieval ends. The retrieval's thread writes
+// `state` and `error`; a Dataset reads them and looks for the files itself.
+struct IncomingSeries {
+  struct Slice {
+    std::filesystem::path file;
+    std::optional<std::array<double, 3>> position;     // ImagePositionPatient, if listed
+    std::optional<std::array<double, 6>> orientation;  // ImageOrientationPatient, if listed
+  };
+  enum class State { Arriving, Complete, Failed };
+
+  std::filesystem::path folder;
+  std::string description;   // for the status line, e.g. the series description
+  std::vector<Slice> slices;  // as listed
+  std::atomic<State> state{State::Arriving};
+  std::mutex mutex;
+  std::string error;  // when Failed (guarded by mutex)
+
+  void fail(const std::string& why) {
+    {
+      std::lock_guard lock(mutex);
+      error = why;
+    }
+    state = State::Failed;
+  }
+};
+
+// The grid of a listed series before its pixels arrive: the slices of the majority
+// orientation must be evenly spaced along a line (a tilted stack is a shear); the in-plane
+// columns and the first slice's position come from a file of the series that has arrived
+// (`firstFile`, one slice). Returns the grid and each listed slice's index in it (-1: not in
+// the grid), or nullopt with `why` set when no such grid exists (uneven gaps, a listing
+// without positions, ...): the preview then waits for the whole series.
+struct IncomingGrid {
+  VolumeInfo info;
+  std::vector<int64_t> indexOfSlice;
+};
+std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& firstFile,
+                                         std::string& why);
 
 class Dataset {
  public:
@@ -62,6 +119,9 @@ class Dataset {
   // Opens a store now (throws octoray::Error when it is damaged), or starts the background
   // import of any other input (its errors arrive through state() and error()).
   Dataset(const std::string& path, const std::filesystem::path& cacheDir);
+  // A series still arriving into incoming->folder: the preview fills as its files land, and
+  // the import of the folder starts once the retrieval is complete.
+  Dataset(std::shared_ptr<IncomingSeries> incoming, const std::filesystem::path& cacheDir);
   ~Dataset();  // cancels a running import (the partial store is removed by the builder)
   Dataset(const Dataset&) = delete;
   Dataset& operator=(const Dataset&) = delete;
@@ -90,6 +150,9 @@ class Dataset {
 
  private:
   void importThread();
+  // Incoming series: previews the slices as they land; returns when the retrieval ended
+  // (false, with the error set, when it failed or was cancelled).
+  bool receive();
 
   std::string path_;
   std::filesystem::path cacheDir_;
@@ -103,6 +166,7 @@ class Dataset {
   std::vector<std::string> warnings_;
   std::unique_ptr<PreviewVolume> preview_;
   std::unique_ptr<volume::StoreReader> store_;
+  std::shared_ptr<IncomingSeries> incoming_;
   std::thread import_, previewThread_;
 };
 

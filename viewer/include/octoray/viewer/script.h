@@ -44,7 +44,7 @@ struct ScriptPosition {
 
 struct ScriptStep {
   enum class Type {
-    Move, Press, Release, Click, Drag, Wheel, Key, Action, WaitConverged, Screenshot,
+    Move, Press, Release, Click, Drag, Wheel, Key, Action, WaitConverged, WaitPreview, Screenshot,
     SaveSession, LoadSession, DumpState, Quit
   } type = Type::Move;
   int wait = 1;                    // frames before the step
@@ -60,7 +60,8 @@ struct ScriptStep {
   std::string path;                // screenshot / session / state file
   std::optional<ViewId> view;      // screenshot of one view (else the whole window)
   bool patientInfo = false;        // screenshot: keep patient corners (off unless asked)
-  double timeoutSeconds = 120;     // wait-converged
+  double timeoutSeconds = 120;     // wait-converged, wait-preview
+  double fraction = 0;             // wait-preview: the share of the preview's slices to wait for
 };
 
 // Throws octoray::Error naming `path` and the step at fault.
