@@ -636,8 +636,8 @@ class ViewerGui(unittest.TestCase):
         self.assertNotIn(secret, p.stdout + p.stderr)
 
     # Issue 13: the first MPR slices appear while the rest of the series arrives. The PACS is
-    # behind a slow link (each instance held back 0.15 s); the viewer is looked at once a
-    # quarter of the slices are in.
+    # behind a slow link (each instance held back 0.2 s: 28 s for the series); the viewer is
+    # looked at once a tenth of the slices are in.
     def test_pacs_slices_appear_while_the_series_arrives(self):
         import pydicom
         vw = self.viewer("pacs-arriving")
@@ -647,7 +647,7 @@ class ViewerGui(unittest.TestCase):
         try:
             files = sorted(os.path.join(HEAD, n) for n in os.listdir(HEAD) if n != "DIRFILE")
             server.upload(files)
-            link = orthanc.SlowLink(server.url, 0.15)
+            link = orthanc.SlowLink(server.url, 0.2)
             first = pydicom.dcmread(files[0], stop_before_pixels=True)
             creds = vw.path("pacs.cred")
             with open(creds, "w") as f:
@@ -658,7 +658,7 @@ class ViewerGui(unittest.TestCase):
                 {"type": "action", "name": "pacs-server", "value": {"url": link.url + "/dicom-web", "credentials": creds}},
                 {"type": "action", "name": "pacs-retrieve",
                  "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
-                {"type": "wait-preview", "fraction": 0.25, "timeout": 300},
+                {"type": "wait-preview", "fraction": 0.1, "timeout": 300},
                 {"type": "screenshot", "path": vw.path("arriving.png")},
                 {"type": "wait-converged", "timeout": 900},
                 {"type": "screenshot", "path": vw.path("arrived.png")},
@@ -673,7 +673,7 @@ class ViewerGui(unittest.TestCase):
         mid = load_json(vw.path("arriving.png.json"))
         self.assertEqual(mid["dataset"]["state"], "importing")
         self.assertTrue(mid["dataset"]["status"].startswith("retrieving "), mid["dataset"]["status"])
-        self.assertGreaterEqual(mid["dataset"]["previewFraction"], 0.25)
+        self.assertGreaterEqual(mid["dataset"]["previewFraction"], 0.1)
         self.assertLess(mid["dataset"]["previewFraction"], 1.0)
         # The coronal view: every row through anatomy shows either the slice the oracle computes
         # from the DICOM files (within one grey level) or nothing (not arrived yet, never
@@ -686,7 +686,7 @@ class ViewerGui(unittest.TestCase):
         equal = np.abs(got[anatomy] - expected[anatomy]).max(axis=1) <= 1
         empty = got[anatomy].max(axis=1) == 0
         self.assertTrue(np.all(equal | empty), f"rows neither right nor empty: {anatomy[~(equal | empty)][:10]}")
-        self.assertGreater(equal.mean(), 0.2, "too little shown while arriving")
+        self.assertGreater(equal.mean(), 0.05, "too little shown while arriving")
         self.assertGreater(empty.mean(), 0.2, "nothing missing: the series had arrived")
         runs = np.flatnonzero(np.diff(empty.astype(int)))
         self.assertEqual(len(runs), 1, f"the empty rows are not one run at an end: changes at {runs}")

@@ -199,8 +199,11 @@ void PacsPanel::poll(App& app) {
   if (!job_.valid() || busy()) return;
   job_.get();
   std::lock_guard lock(mutex_);
-  // A failed retrieval whose series is open is reported by the dataset (in the window).
-  if (!error_.empty() && !incomingOpened_) app.messages.push_back(error_);
+  // A failed retrieval whose series is still open is reported by the dataset (in the window);
+  // else here.
+  const bool shownByDataset = incomingOpened_ && incoming_ && app.dataset() &&
+                              app.dataset()->path() == incoming_->folder.string();
+  if (!error_.empty() && !shownByDataset) app.messages.push_back(error_);
   incoming_.reset();
 }
 

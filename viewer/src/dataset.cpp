@@ -139,7 +139,7 @@ double PreviewVolume::fraction() const {
   return static_cast<double>(slicesDone_.load()) / static_cast<double>(dims_[2]);
 }
 
-double PreviewVolume::sample(Vec3 q) const {
+double PreviewVolume::sample(Vec3 q, const std::vector<uint8_t>& done) const {
   std::array<int64_t, 3> i0{};
   std::array<double, 3> t{};
   for (int a = 0; a < 3; ++a) {
@@ -157,8 +157,8 @@ double PreviewVolume::sample(Vec3 q) const {
   if (t[2] < kOnSlice) t[2] = 0.0;
   if (t[2] > 1.0 - kOnSlice) t[2] = 1.0;
   const int64_t z1 = std::min(i0[2] + 1, dims_[2] - 1);
-  const bool z0In = t[2] == 1.0 || sliceDone_[static_cast<std::size_t>(i0[2])].load(std::memory_order_acquire);
-  const bool z1In = t[2] == 0.0 || sliceDone_[static_cast<std::size_t>(z1)].load(std::memory_order_acquire);
+  const bool z0In = t[2] == 1.0 || done[static_cast<std::size_t>(i0[2])];
+  const bool z1In = t[2] == 0.0 || done[static_cast<std::size_t>(z1)];
   if (!z0In || !z1In) return std::numeric_limits<double>::quiet_NaN();
   auto at = [&](int64_t x, int64_t y, int64_t z) {
     x = std::min(x, dims_[0] - 1);
@@ -190,6 +190,10 @@ Slice PreviewVolume::slice(const SliceRequest& req) const {
   }
   out.slabSamples = samples;
   out.missingBricks = slicesDone_.load() < dims_[2] ? 1 : 0;
+  // One look at which slices are in, for the whole picture: a slice that comes meanwhile
+  // shows in the next one, never in half of this one.
+  std::vector<uint8_t> done(static_cast<std::size_t>(dims_[2]));
+  for (std::size_t k = 0; k < done.size(); ++k) done[k] = sliceDone_[k].load(std::memory_order_acquire);
   tbb::parallel_for(tbb::blocked_range<int>(0, plane.height), [&](const tbb::blocked_range<int>& rows) {
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < plane.width; ++x) {
@@ -200,7 +204,7 @@ Slice PreviewVolume::slice(const SliceRequest& req) const {
         int n = 0;
         for (int s = 0; s < samples; ++s) {
           const double offset = samples == 1 ? 0.0 : -0.5 * req.slabMm + (s + 0.5) * req.slabMm / samples;
-          const double v = sample(grid_.indexFromPatient.transformPoint(c + offset * plane.normal));
+          const double v = sample(grid_.indexFromPatient.transformPoint(c + offset * plane.normal), done);
           if (std::isnan(v)) continue;
           ++n;
           if (req.slab == SlabMode::Mip) acc = std::max(acc, v);
@@ -231,8 +235,9 @@ std::array<long long, 6> orientationKey(const std::array<double, 6>& o) {
 
 }  // namespace
 
-std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& firstFile,
-                                         std::string& why) {
+std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& file,
+                                         std::string& why, bool& listingFails) {
+  listingFails = true;
   // The majority orientation: other slices (a localiser listed with the series) stay out.
   std::map<std::array<long long, 6>, int> votes;
   std::optional<std::array<double, 6>> orientation;
@@ -267,36 +272,35 @@ std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const Vol
   std::vector<double> sorted = gaps;
   std::sort(sorted.begin(), sorted.end());
   const double median = sorted[sorted.size() / 2];
-  const double tolerance = std::max(0.01, 0.01 * median);  // as the stack's "uniform" test
-  if (!(sorted.front() > 1e-3) || sorted.back() - sorted.front() > tolerance) {
-    why = fmt::format("the slices are not evenly spaced (gaps {:.3f} to {:.3f} mm)", sorted.front(), sorted.back());
+  // The import's rules (dicom_volume.cpp, resolveStack): it keeps one of two instances at one
+  // position, and resamples unless every gap is within max(5 um, 0.1 % of the median).
+  if (sorted.front() < 1e-3) {
+    why = "two instances share a slice position (the import keeps one)";
     return std::nullopt;
   }
-  // Evenly spaced along the normal and on one line (a tilted stack is a shear).
+  if (sorted.back() - sorted.front() > std::max(5e-3, 1e-3 * median)) {
+    why = fmt::format("the slices are not evenly spaced (gaps {:.3f} to {:.3f} mm): the import resamples them",
+                      sorted.front(), sorted.back());
+    return std::nullopt;
+  }
+  // The in-plane columns from a file that arrived: one slice of the listed orientation.
+  const Vec3 c0 = file.patientFromIndex.column(0), c1 = file.patientFromIndex.column(1);
+  if (file.dims[2] != 1 || dot(normalize(c0), row) < 0.9999 || dot(normalize(c1), column) < 0.9999) {
+    why = "the file is not one slice of the listed orientation";
+    listingFails = false;
+    return std::nullopt;
+  }
+  // The slice step from the end slices, as the import's: a tilted stack is a shear.
   const Vec3 first = toVec3(*series.slices[along.front().second].position);
   const Vec3 step = (1.0 / static_cast<double>(n - 1)) * (toVec3(*series.slices[along.back().second].position) - first);
-  for (std::size_t k = 0; k < n; ++k) {
-    const Vec3 expected = first + static_cast<double>(k) * step;
-    if (length(toVec3(*series.slices[along[k].second].position) - expected) > tolerance) {
-      why = fmt::format("slice {} is {:.3f} mm off the line through the first and last", k,
-                        length(toVec3(*series.slices[along[k].second].position) - expected));
-      return std::nullopt;
-    }
-  }
-  // The in-plane columns from a file that arrived; its rows and columns must be the listing's.
-  const Vec3 c0 = firstFile.patientFromIndex.column(0), c1 = firstFile.patientFromIndex.column(1);
-  if (firstFile.dims[2] != 1 || dot(normalize(c0), row) < 0.9999 || dot(normalize(c1), column) < 0.9999) {
-    why = "the first file that arrived is not one slice of the listed orientation";
-    return std::nullopt;
-  }
   IncomingGrid grid;
-  grid.info = firstFile;
-  grid.info.dims = {firstFile.dims[0], firstFile.dims[1], static_cast<int64_t>(n)};
+  grid.info = file;
+  grid.info.dims = {file.dims[0], file.dims[1], static_cast<int64_t>(n)};
   grid.info.patientFromIndex = Mat4::fromColumns(c0, c1, step, first);
   grid.info.sourcePath = series.folder.string();
   grid.info.sourceFiles.clear();
   grid.info.warnings.clear();
-  grid.info.description = series.description.empty() ? firstFile.description : series.description;
+  grid.info.description = series.description.empty() ? file.description : series.description;
   grid.indexOfSlice.assign(series.slices.size(), -1);
   for (std::size_t k = 0; k < n; ++k) grid.indexOfSlice[along[k].second] = static_cast<int64_t>(k);
   return grid;
@@ -339,54 +343,68 @@ Dataset::Dataset(std::shared_ptr<IncomingSeries> incoming, const fs::path& cache
   import_ = std::thread([this] { importThread(); });
 }
 
-bool Dataset::receive() {
-  IncomingSeries& in = *incoming_;
-  const std::size_t total = in.slices.size();
-  slicesTotal_ = static_cast<int64_t>(total);
-  std::vector<uint8_t> seen(total, 0);
+// What the preview has made of an incoming series' files so far.
+struct Dataset::Arrivals {
+  std::vector<uint8_t> seen;  // per listed slice: looked at
   std::optional<IncomingGrid> grid;
+  bool noGrid = false;        // the listing gives none: the import's preview will show the series
   PreviewVolume* preview = nullptr;
-  bool gridTried = false;
   int64_t arrived = 0;
+};
+
+void Dataset::placeArrived(Arrivals& a) {
+  const IncomingSeries& in = *incoming_;
   std::vector<float> values;
-  while (!cancel_) {
-    // Read before looking: every file that landed before the retrieval said "complete" is seen.
-    const IncomingSeries::State state = in.state.load();
-    for (std::size_t s = 0; s < total && !cancel_; ++s) {
-      std::error_code ec;
-      if (seen[s] || !fs::is_regular_file(in.slices[s].file, ec)) continue;
-      seen[s] = 1;
-      slicesDone_ = ++arrived;
-      try {
-        auto source = openVolume(in.slices[s].file.string());
-        const VolumeInfo& one = source->info();
-        if (!gridTried) {
-          gridTried = true;
-          std::string why;
-          grid = incomingGrid(in, one, why);
-          if (!grid) {
+  for (std::size_t s = 0; s < in.slices.size() && !cancel_; ++s) {
+    std::error_code ec;
+    if (a.seen[s] || !fs::is_regular_file(in.slices[s].file, ec)) continue;
+    a.seen[s] = 1;
+    ++a.arrived;
+    if (a.noGrid) continue;
+    try {
+      auto source = openVolume(in.slices[s].file.string());
+      const VolumeInfo& one = source->info();
+      if (!a.grid) {
+        std::string why;
+        bool listingFails = true;
+        a.grid = incomingGrid(in, one, why, listingFails);
+        if (!a.grid) {
+          if (listingFails) {
+            a.noGrid = true;
             std::lock_guard lock(mutex_);
             warnings_.push_back("no preview while the series arrives: " + why);
-            continue;
           }
-          auto made = std::make_unique<PreviewVolume>(grid->info, uint64_t{256} << 20);
-          preview = made.get();
-          std::lock_guard lock(mutex_);
-          info_ = grid->info;
-          preview_ = std::move(made);
+          continue;  // else the next file that lands may give the grid
         }
-        const int64_t k = grid ? grid->indexOfSlice[s] : -1;
-        if (k < 0 || one.dims != std::array<int64_t, 3>{grid->info.dims[0], grid->info.dims[1], 1}) continue;
-        // Where the file says it is must be where the listing put it.
-        const Vec3 expected = grid->info.patientFromIndex.transformPoint({0, 0, static_cast<double>(k)});
-        if (length(one.patientFromIndex.transformPoint({0, 0, 0}) - expected) > 0.05) continue;
-        values.resize(static_cast<std::size_t>(one.sliceSamples()));
-        source->readSlab(0, 1, values);
-        preview->addSlice(k, values);
-      } catch (const std::exception&) {
-        // A file the preview cannot show; the import of the whole folder names it.
+        auto made = std::make_unique<PreviewVolume>(a.grid->info, uint64_t{256} << 20);
+        a.preview = made.get();
+        std::lock_guard lock(mutex_);
+        info_ = a.grid->info;
+        preview_ = std::move(made);
       }
+      const int64_t k = a.grid->indexOfSlice[s];
+      if (k < 0 || one.dims != std::array<int64_t, 3>{a.grid->info.dims[0], a.grid->info.dims[1], 1}) continue;
+      // The file must be where the listing says it is.
+      const auto& listed = *in.slices[s].position;
+      if (length(one.patientFromIndex.transformPoint({0, 0, 0}) - Vec3{listed[0], listed[1], listed[2]}) > 0.01) continue;
+      values.resize(static_cast<std::size_t>(one.sliceSamples()));
+      source->readSlab(0, 1, values);
+      a.preview->addSlice(k, values);
+    } catch (const std::exception&) {
+      // A file the preview cannot show; the import of the whole folder names it.
     }
+  }
+}
+
+bool Dataset::receive() {
+  IncomingSeries& in = *incoming_;
+  slicesTotal_ = static_cast<int64_t>(in.slices.size());
+  arrivals_ = std::make_unique<Arrivals>();
+  arrivals_->seen.assign(in.slices.size(), 0);
+  while (!cancel_) {
+    // Complete: the import starts now; the files not looked at yet are placed meanwhile
+    // (importThread). A folder complete from the start is previewed as any folder.
+    const IncomingSeries::State state = in.state.load();
     if (state == IncomingSeries::State::Complete) return true;
     if (state == IncomingSeries::State::Failed) {
       std::lock_guard lock(mutex_);
@@ -395,6 +413,8 @@ bool Dataset::receive() {
       state_ = State::Failed;
       return false;
     }
+    placeArrived(*arrivals_);
+    slicesDone_ = arrivals_->arrived;
     std::this_thread::sleep_for(std::chrono::milliseconds(40));
   }
   std::lock_guard lock(mutex_);
@@ -453,14 +473,18 @@ void Dataset::importThread() {
       previewMade = preview_ != nullptr;
       if (!previewMade) preview_ = std::make_unique<PreviewVolume>(info, uint64_t{256} << 20);
     }
-    if (!previewMade) previewThread_ = std::thread([this] {
-      try {
-        auto second = openVolume(path_);
-        preview_->fill(*second, cancel_);
-      } catch (const std::exception&) {
-        // The import reports the same problem with the file; the preview just stops.
-      }
-    });
+    if (!previewMade) {
+      previewThread_ = std::thread([this] {
+        try {
+          auto second = openVolume(path_);
+          preview_->fill(*second, cancel_);
+        } catch (const std::exception&) {
+          // The import reports the same problem with the file; the preview just stops.
+        }
+      });
+    } else if (arrivals_) {
+      previewThread_ = std::thread([this] { placeArrived(*arrivals_); });  // the last arrivals
+    }
     const std::string key = storeCacheKey(*source);
     fs::create_directories(cacheDir_);
     const fs::path target = cacheDir_ / (key + ".octoray");

@@ -57,7 +57,8 @@ class PreviewVolume {
   double fraction() const;
 
  private:
-  double sample(Vec3 leafIndex) const;  // NaN outside or not yet read
+  // NaN outside or where a slice it needs is not in `done` (a snapshot of sliceDone_).
+  double sample(Vec3 leafIndex, const std::vector<uint8_t>& done) const;
   void publish(int64_t previewSlice);    // the slice's values are final: let readers see it
   Grid grid_;
   std::array<int64_t, 3> sourceDims_{1, 1, 1};
@@ -99,18 +100,19 @@ struct IncomingSeries {
   }
 };
 
-// The grid of a listed series before its pixels arrive: the slices of the majority
-// orientation must be evenly spaced along a line (a tilted stack is a shear); the in-plane
-// columns and the first slice's position come from a file of the series that has arrived
-// (`firstFile`, one slice). Returns the grid and each listed slice's index in it (-1: not in
-// the grid), or nullopt with `why` set when no such grid exists (uneven gaps, a listing
-// without positions, ...): the preview then waits for the whole series.
+// The grid of a listed series before its pixels arrive, by the import's rules: the slices of
+// the majority orientation evenly spaced (the slice step from the end slices: a tilted stack
+// is a shear), no two at one position; the in-plane columns from `file`, a file of the series
+// that has arrived. Returns the grid and each listed slice's index in it (-1: not in the
+// grid), or nullopt with `why`: with `listingFails` when the listing gives no such grid (no
+// positions, uneven gaps, ...: the preview waits for the import), else because `file` is not
+// one slice of the listed orientation (the next file that lands may give it).
 struct IncomingGrid {
   VolumeInfo info;
   std::vector<int64_t> indexOfSlice;
 };
-std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& firstFile,
-                                         std::string& why);
+std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const VolumeInfo& file,
+                                         std::string& why, bool& listingFails);
 
 class Dataset {
  public:
@@ -153,6 +155,8 @@ class Dataset {
   // Incoming series: previews the slices as they land; returns when the retrieval ended
   // (false, with the error set, when it failed or was cancelled).
   bool receive();
+  struct Arrivals;
+  void placeArrived(Arrivals& arrivals);  // looks once at every listed file not seen yet
 
   std::string path_;
   std::filesystem::path cacheDir_;
@@ -167,6 +171,7 @@ class Dataset {
   std::unique_ptr<PreviewVolume> preview_;
   std::unique_ptr<volume::StoreReader> store_;
   std::shared_ptr<IncomingSeries> incoming_;
+  std::unique_ptr<Arrivals> arrivals_;
   std::thread import_, previewThread_;
 };
 
