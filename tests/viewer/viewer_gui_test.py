@@ -39,7 +39,7 @@ class Viewer:
         self.workdir = workdir
         self.count = 0
 
-    def run(self, data, steps, extra=(), expect_ok=True, env_extra=None):
+    def run(self, data, steps, extra=(), expect_ok=True, env_extra=None, cache="cache"):
         self.count += 1
         script = os.path.join(self.workdir, f"script{self.count}.json")
         with open(script, "w") as f:
@@ -49,7 +49,7 @@ class Viewer:
         if data:
             argv.append(data)
         argv += ["--script", script, "--exit", "--size", f"{SIZE[0]}x{SIZE[1]}",
-                 "--cache-dir", os.path.join(self.workdir, "cache"), *extra]
+                 "--cache-dir", os.path.join(self.workdir, cache), *extra]
         p = run(argv, env=env)
         if expect_ok and p.returncode != 0:
             raise AssertionError(f"octoray-view failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
@@ -665,11 +665,25 @@ class ViewerGui(unittest.TestCase):
             ]
             vw.run(None, steps)
             fetched = link.instances
+            # Closing the viewer while a series arrives stops the retrieval (not waiting for
+            # the rest): the folder stays partial, for a rerun to complete.
+            quit_steps = [
+                {"type": "action", "name": "pacs-server", "value": {"url": link.url + "/dicom-web", "credentials": creds}},
+                {"type": "action", "name": "pacs-retrieve",
+                 "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
+                {"type": "wait-preview", "fraction": 0.05, "timeout": 300},
+            ]
+            vw.run(None, quit_steps, cache="cache2")
+            fetched_before_quit = link.instances - fetched
         finally:
             if link:
                 link.stop()
             server.stop()
         self.assertEqual(fetched, 140)
+        self.assertLess(fetched_before_quit, 100, "the retrieval went on after the viewer was closed")
+        partial = os.path.join(vw.path("cache2"), "pacs", str(first.StudyInstanceUID), str(first.SeriesInstanceUID))
+        self.assertTrue(os.path.isdir(partial))
+        self.assertFalse(os.path.exists(os.path.join(partial, ".octoray-retrieved.json")))
         mid = load_json(vw.path("arriving.png.json"))
         self.assertEqual(mid["dataset"]["state"], "importing")
         self.assertTrue(mid["dataset"]["status"].startswith("retrieving "), mid["dataset"]["status"])

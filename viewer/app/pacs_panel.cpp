@@ -58,6 +58,9 @@ PacsPanel::PacsPanel() {
 }
 
 PacsPanel::~PacsPanel() {
+  // A retrieval stops after the instance it is receiving (what is complete stays for a rerun);
+  // a search ends within the connection's timeout.
+  cancel_ = true;
   if (job_.valid()) job_.wait();
 }
 
@@ -175,7 +178,10 @@ void PacsPanel::startRetrieve(App& app, const std::string& studyUid, const std::
         total_ = total;
       };
       pacs::retrieveSeries(request, [&](const std::vector<std::string>& uids, const pacs::InstanceSink& sink) {
-        connection->fetch(studyUid, seriesUid, uids, sink);
+        connection->fetch(studyUid, seriesUid, uids, [&](const std::string& uid, std::vector<uint8_t> part10) {
+          if (cancel_) throw Error(folder.string(), "retrieval cancelled (the viewer closed)");
+          sink(uid, std::move(part10));
+        });
       });
       incoming->state = IncomingSeries::State::Complete;
     } catch (const std::exception& e) {

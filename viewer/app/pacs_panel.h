@@ -36,7 +36,7 @@ class PacsPanel {
  public:
   // Loads the server list from <config>/pacs-servers.json.
   PacsPanel();
-  ~PacsPanel();  // waits for a running job
+  ~PacsPanel();  // stops a running retrieval after its current instance; waits for the job
   PacsPanel(const PacsPanel&) = delete;
   PacsPanel& operator=(const PacsPanel&) = delete;
 
@@ -76,6 +76,7 @@ class PacsPanel {
   std::shared_ptr<IncomingSeries> incoming_;  // listed by a retrieval, opened by poll()
   bool incomingOpened_ = false;                 // the running retrieval's series is open
   std::atomic<int64_t> done_{0}, total_{0};
+  std::atomic<bool> cancel_{false};  // set by the destructor
 };
 
 }  // namespace octoray::viewer
