@@ -322,51 +322,75 @@ Record buildItem(const WorkItem& item, uint64_t memoryBudgetBytes, const std::at
   return record;
 }
 
-RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions& options) {
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<int64_t> items = options.items;
-  if (items.empty()) {
-    for (const auto& it : plan.items) items.push_back(it.index);
+namespace {
+
+// One run of a plan's items: `jobs` threads, each feeding its own worker process item after
+// item; the manifest writer and the summary they share.
+class PlanRun {
+ public:
+  PlanRun(const fs::path& planPath, const Plan& plan, const RunOptions& options)
+      : plan_(plan), options_(options), items_(selectedItems(planPath, plan, options)),
+        before_(readManifest(planPath, plan)), writer_(manifestFolder(planPath), writerName()),
+        workerArgv_{options.workerExecutable, "worker", "--memory-budget",
+                    std::to_string(std::max<uint64_t>(1, options.resources.memoryBudgetBytes / kMiB)), "--parent",
+                    std::to_string(::getpid()), "--threads", std::to_string(options.resources.threadsPerWorker)} {
+    summary_.selected = static_cast<int64_t>(items_.size());
+    summary_.manifest = writer_.path();
+    for (int64_t i : items_) voxelsTotal_ += plan.items[static_cast<std::size_t>(i)].voxels();
   }
-  for (int64_t i : items) {
-    if (i < 0 || i >= static_cast<int64_t>(plan.items.size())) {
-      throw Error(planPath.string(), fmt::format("item {} is not in the plan (0..{})", i, plan.items.size() - 1));
+
+  RunSummary run() {
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<std::thread> threads;
+    const int jobs = std::max(1, std::min<int>(options_.resources.jobs, static_cast<int>(items_.size())));
+    for (int t = 0; t < jobs; ++t) threads.emplace_back([this] { work(); });
+    std::atomic<bool> allDone{false};
+    std::thread watcher([&] { forwardCancel(allDone); });
+    for (auto& t : threads) t.join();
+    allDone = true;
+    watcher.join();
+    if (firstError_) std::rethrow_exception(firstError_);
+    summary_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::sort(summary_.failures.begin(), summary_.failures.end(),
+              [](const Record& a, const Record& b) { return a.item < b.item; });
+    return summary_;
+  }
+
+ private:
+  static std::vector<int64_t> selectedItems(const fs::path& planPath, const Plan& plan, const RunOptions& options) {
+    std::vector<int64_t> items = options.items;
+    if (items.empty()) {
+      for (const auto& it : plan.items) items.push_back(it.index);
     }
+    for (int64_t i : items) {
+      if (i < 0 || i >= static_cast<int64_t>(plan.items.size())) {
+        throw Error(planPath.string(), fmt::format("item {} is not in the plan (0..{})", i, plan.items.size() - 1));
+      }
+    }
+    return items;
   }
-  // A worker whose stdin closes early must not kill the run with SIGPIPE.
-  std::signal(SIGPIPE, SIG_IGN);
-  const ManifestState before = readManifest(planPath, plan);
-  ManifestWriter writer(manifestFolder(planPath), writerName());
 
-  RunSummary summary;
-  summary.selected = static_cast<int64_t>(items.size());
-  summary.manifest = writer.path();
-  int64_t voxelsTotal = 0;
-  for (int64_t i : items) voxelsTotal += plan.items[static_cast<std::size_t>(i)].voxels();
-  int64_t voxelsDone = 0;
-  std::mutex mutex;  // the writer, the summary, the callbacks
-  std::atomic<std::size_t> next{0};
-  std::mutex childrenMutex;
-  std::set<pid_t> children;
+  bool cancelled() const { return options_.cancel && options_.cancel->load(); }
 
-  auto finish = [&](const Record& r, int64_t voxels, bool built) {
-    std::lock_guard lock(mutex);
-    writer.append(r);
+  // Records an item's outcome: the manifest, the summary, the callbacks.
+  void finish(const Record& r, int64_t voxels, bool built) {
+    std::lock_guard lock(mutex_);
+    writer_.append(r);
     if (r.status == "failed") {
-      ++summary.failed;
-      summary.failures.push_back(r);
+      ++summary_.failed;
+      summary_.failures.push_back(r);
     } else if (built) {
-      ++summary.built;
-      summary.voxelsBuilt += voxels;
+      ++summary_.built;
+      summary_.voxelsBuilt += voxels;
     } else {
-      ++summary.upToDate;
+      ++summary_.upToDate;
     }
-    voxelsDone += voxels;
-    if (options.itemFinished) options.itemFinished(r);
-    if (options.progress) options.progress(voxelsDone, voxelsTotal);
-  };
+    voxelsDone_ += voxels;
+    if (options_.itemFinished) options_.itemFinished(r);
+    if (options_.progress) options_.progress(voxelsDone_, voxelsTotal_);
+  }
 
-  auto failure = [&](const WorkItem& item, const std::string& error) {
+  static Record failure(const WorkItem& item, const std::string& error) {
     Record r;
     r.item = item.index;
     r.status = "failed";
@@ -374,147 +398,162 @@ RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions&
     r.output = item.output;
     r.error = error;
     return r;
-  };
+  }
 
-  // What stops the whole run (the manifest cannot be written, ...) is thrown again after every
-  // thread has stopped; the other threads stop starting items.
-  std::exception_ptr firstError;
-  std::atomic<bool> abandon{false};
+  void countInterrupted() {
+    std::lock_guard lock(mutex_);
+    ++summary_.interrupted;
+  }
 
-  const std::vector<std::string> workerArgv = {
-      options.workerExecutable, "worker", "--memory-budget",
-      std::to_string(std::max<uint64_t>(1, options.resources.memoryBudgetBytes / kMiB)), "--parent",
-      std::to_string(::getpid()), "--threads", std::to_string(options.resources.threadsPerWorker)};
-  auto workLoop = [&] {
-    // One worker process per thread, kept for item after item (starting one loads every
-    // library and its GDCM vetters: 0.3-0.5 s of CPU); a new one after a crash.
-    std::unique_ptr<WorkerProcess> worker;
-    auto forget = [&] {
-      if (!worker) return;
-      std::lock_guard lock(childrenMutex);
-      children.erase(worker->pid());
-    };
-    while (true) {
-      const std::size_t k = next.fetch_add(1);
-      if (k >= items.size()) break;
-      const WorkItem& item = plan.items[static_cast<std::size_t>(items[k])];
-      if (abandon.load()) break;
-      if (options.cancel && options.cancel->load()) {
-        std::lock_guard lock(mutex);
-        ++summary.interrupted;
-        continue;
+  // True when the item's store is there and current: counted as up to date, and recorded when
+  // a run that was killed built it without recording it.
+  bool alreadyBuilt(const WorkItem& item) {
+    if (!storeIsUpToDate(item)) return false;
+    const auto known = before_.latest.find(item.index);
+    if (known != before_.latest.end() && known->second.status == "done") {
+      std::lock_guard lock(mutex_);
+      ++summary_.upToDate;
+      voxelsDone_ += item.voxels();
+      if (options_.progress) options_.progress(voxelsDone_, voxelsTotal_);
+      return true;
+    }
+    Record r;
+    r.item = item.index;
+    r.status = "done";
+    r.contentHash = item.contentHash;
+    r.output = item.output;
+    std::error_code sizeError;
+    r.bytes = fs::file_size(item.output, sizeError);
+    r.note = "found complete";
+    finish(r, item.voxels(), false);
+    return true;
+  }
+
+  void startWorker(std::unique_ptr<WorkerProcess>& worker) {
+    worker = std::make_unique<WorkerProcess>(workerArgv_);
+    std::lock_guard lock(childrenMutex_);
+    children_.insert(worker->pid());
+    if (cancelled()) ::kill(worker->pid(), SIGTERM);
+  }
+
+  WorkerProcess::Exit dropWorker(std::unique_ptr<WorkerProcess>& worker) {
+    {
+      std::lock_guard lock(childrenMutex_);
+      children_.erase(worker->pid());
+    }
+    const WorkerProcess::Exit exit = worker->reap();
+    worker.reset();
+    return exit;
+  }
+
+  // Builds one item on the thread's worker (started, or replaced after a crash, as needed).
+  void build(std::unique_ptr<WorkerProcess>& worker, const WorkItem& item) {
+    if (!worker) {
+      try {
+        startWorker(worker);
+      } catch (const Error& e) {
+        finish(failure(item, e.what()), item.voxels(), false);
+        return;
       }
-      if (storeIsUpToDate(item)) {
-        const auto known = before.latest.find(item.index);
-        if (known != before.latest.end() && known->second.status == "done") {
-          std::lock_guard lock(mutex);
-          ++summary.upToDate;
-          voxelsDone += item.voxels();
-          if (options.progress) options.progress(voxelsDone, voxelsTotal);
-          continue;
-        }
-        // Built by a run that was killed before it could record it.
-        Record r;
-        r.item = item.index;
-        r.status = "done";
-        r.contentHash = item.contentHash;
-        r.output = item.output;
-        std::error_code sizeError;
-        r.bytes = fs::file_size(item.output, sizeError);
-        r.note = "found complete";
-        finish(r, item.voxels(), false);
-        continue;
-      }
-      if (!worker) {
-        try {
-          worker = std::make_unique<WorkerProcess>(workerArgv);
-        } catch (const Error& e) {
-          finish(failure(item, e.what()), item.voxels(), false);
-          continue;
-        }
-        std::lock_guard lock(childrenMutex);
-        children.insert(worker->pid());
-        if (options.cancel && options.cancel->load()) ::kill(worker->pid(), SIGTERM);
-      }
-      WorkerProcess::Outcome outcome = worker->build(dumpJson(toJson(item)));
-      if (!outcome.record && outcome.notSent) {
-        // The worker had died before this item reached it (it is not this item's fault): once
-        // more on a fresh one.
-        forget();
-        worker->reap();
-        worker.reset();
-        worker = std::make_unique<WorkerProcess>(workerArgv);
-        {
-          std::lock_guard lock(childrenMutex);
-          children.insert(worker->pid());
-        }
-        outcome = worker->build(dumpJson(toJson(item)));
-      }
-      if (!outcome.record) {
-        // The worker died (cancelled, or crashed on this item), or printed a record that does
-        // not parse: it is replaced.
-        if (outcome.broken) ::kill(worker->pid(), SIGKILL);
-        forget();
-        const WorkerProcess::Exit exit = worker->reap();
-        worker.reset();
-        if (options.cancel && options.cancel->load()) {
-          std::lock_guard lock(mutex);
-          ++summary.interrupted;
-          continue;
-        }
-        const std::string how = exit.signal != 0
-                                    ? fmt::format("killed by signal {} ({})", exit.signal, strsignal(exit.signal))
-                                    : fmt::format("exited with status {}", exit.code);
-        std::string error = fmt::format("{}: the worker {} without a result",
-                                        item.kind == "file" ? item.path : item.folder, how);
-        const std::string last = tail(outcome.output, 5);
-        if (!last.empty()) error += ": " + last;
-        finish(failure(item, error), item.voxels(), false);
-        continue;
-      }
+    }
+    WorkerProcess::Outcome outcome = worker->build(dumpJson(toJson(item)));
+    if (!outcome.record && outcome.notSent) {
+      // The worker had died before this item reached it (not this item's fault): once more on
+      // a fresh one.
+      dropWorker(worker);
+      startWorker(worker);
+      outcome = worker->build(dumpJson(toJson(item)));
+    }
+    if (outcome.record) {
       finish(*outcome.record, item.voxels(), outcome.record->status == "done");
+      return;
+    }
+    // The worker died (cancelled, or crashed on this item), or printed a record that does not
+    // parse: it is replaced.
+    if (outcome.broken) ::kill(worker->pid(), SIGKILL);
+    const WorkerProcess::Exit exit = dropWorker(worker);
+    if (cancelled()) {
+      countInterrupted();
+      return;
+    }
+    const std::string how = exit.signal != 0
+                                ? fmt::format("killed by signal {} ({})", exit.signal, strsignal(exit.signal))
+                                : fmt::format("exited with status {}", exit.code);
+    std::string error =
+        fmt::format("{}: the worker {} without a result", item.kind == "file" ? item.path : item.folder, how);
+    const std::string last = tail(outcome.output, 5);
+    if (!last.empty()) error += ": " + last;
+    finish(failure(item, error), item.voxels(), false);
+  }
+
+  // One thread: one worker process kept for item after item (starting one loads every library
+  // and its GDCM vetters: 0.3-0.5 s of CPU).
+  void workLoop() {
+    std::unique_ptr<WorkerProcess> worker;
+    while (true) {
+      const std::size_t k = next_.fetch_add(1);
+      if (k >= items_.size() || abandon_.load()) break;
+      const WorkItem& item = plan_.items[static_cast<std::size_t>(items_[k])];
+      if (cancelled()) {
+        countInterrupted();
+      } else if (!alreadyBuilt(item)) {
+        build(worker, item);
+      }
     }
     if (worker) {
       worker->closeInput();
-      forget();
-      worker->reap();
+      dropWorker(worker);
     }
-  };
-  auto work = [&] {
+  }
+
+  // What stops the whole run (the manifest cannot be written, ...) is thrown again after every
+  // thread has stopped; the other threads stop starting items.
+  void work() {
     try {
       workLoop();
     } catch (...) {
-      std::lock_guard lock(mutex);
-      if (!firstError) firstError = std::current_exception();
-      abandon = true;
+      std::lock_guard lock(mutex_);
+      if (!firstError_) firstError_ = std::current_exception();
+      abandon_ = true;
     }
-  };
+  }
 
-  std::vector<std::thread> threads;
-  const int jobs = std::max(1, std::min<int>(options.resources.jobs, static_cast<int>(items.size())));
-  for (int t = 0; t < jobs; ++t) threads.emplace_back(work);
   // A cancelled run passes SIGTERM on to its workers (Ctrl-C reaches them anyway, through the
   // terminal's process group; `kill PID` and Slurm's scancel of this process do not).
-  std::atomic<bool> allDone{false};
-  std::thread watcher([&] {
+  void forwardCancel(const std::atomic<bool>& allDone) {
     bool forwarded = false;
     while (!allDone.load()) {
-      if (!forwarded && options.cancel && options.cancel->load()) {
-        std::lock_guard lock(childrenMutex);
-        for (pid_t pid : children) ::kill(pid, SIGTERM);
+      if (!forwarded && cancelled()) {
+        std::lock_guard lock(childrenMutex_);
+        for (pid_t pid : children_) ::kill(pid, SIGTERM);
         forwarded = true;
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
-  });
-  for (auto& t : threads) t.join();
-  allDone = true;
-  watcher.join();
-  if (firstError) std::rethrow_exception(firstError);
-  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::sort(summary.failures.begin(), summary.failures.end(),
-            [](const Record& a, const Record& b) { return a.item < b.item; });
-  return summary;
+  }
+
+  const Plan& plan_;
+  const RunOptions& options_;
+  const std::vector<int64_t> items_;
+  const ManifestState before_;
+  ManifestWriter writer_;
+  const std::vector<std::string> workerArgv_;
+  std::mutex mutex_;  // writer_, summary_, voxelsDone_, firstError_, the callbacks
+  RunSummary summary_;
+  int64_t voxelsTotal_ = 0, voxelsDone_ = 0;
+  std::atomic<std::size_t> next_{0};
+  std::atomic<bool> abandon_{false};
+  std::exception_ptr firstError_;
+  std::mutex childrenMutex_;
+  std::set<pid_t> children_;
+};
+
+}  // namespace
+
+RunSummary runPlan(const fs::path& planPath, const Plan& plan, const RunOptions& options) {
+  // A worker whose stdin closes early must not kill the run with SIGPIPE.
+  std::signal(SIGPIPE, SIG_IGN);
+  return PlanRun(planPath, plan, options).run();
 }
 
 }  // namespace octoray::batch
