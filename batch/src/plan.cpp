@@ -309,7 +309,10 @@ std::string expandTemplate(const std::string& outputTemplate,
   return checked;
 }
 
-Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& options) {
+namespace {
+
+// The options' checks that need no scan: dates, the description regex, the template's fields.
+std::optional<std::regex> checkPlanOptions(const PlanOptions& options) {
   if (options.outDir.empty()) throw Error("", "no output folder for the stores");
   checkDate(options.studyDateFrom, "study date");
   checkDate(options.studyDateTo, "study date");
@@ -321,7 +324,6 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
       throw Error("", fmt::format("description regex '{}': {}", options.descriptionRegex, e.what()));
     }
   }
-  // Check the template before the (long) scan.
   expandTemplate(options.outputTemplate, [](const std::string& name) -> std::optional<std::string> {
     static const std::set<std::string> known = {
         "PatientID-hash", "PatientID", "PatientName", "StudyInstanceUID", "StudyDate",
@@ -329,54 +331,45 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
     if (known.contains(name)) return "x";
     return std::nullopt;
   });
+  return description;
+}
 
-  Collector c;
-  c.plan.created = isoNow();
-  c.plan.outDir = fs::absolute(options.outDir).lexically_normal().string();
-  c.plan.outputTemplate = options.outputTemplate;
-  for (const auto& archive : archives) {
-    c.plan.archives.push_back(fs::absolute(archive).lexically_normal().string());
-    scanArchive(c.plan.archives.back(), options, c);
-  }
+json filtersJson(const PlanOptions& options) {
   json filters = json::object();
   if (!options.modalities.empty()) filters["modality"] = options.modalities;
   if (options.minSlices > 0) filters["minSlices"] = options.minSlices;
   if (!options.studyDateFrom.empty()) filters["studyDateFrom"] = options.studyDateFrom;
   if (!options.studyDateTo.empty()) filters["studyDateTo"] = options.studyDateTo;
   if (!options.descriptionRegex.empty()) filters["description"] = options.descriptionRegex;
-  c.plan.filters = filters;
+  return filters;
+}
 
-  // Filters.
-  std::vector<Candidate> kept;
-  for (auto& cand : c.candidates) {
-    const WorkItem& it = cand.item;
-    std::string reason;
-    if (!options.modalities.empty() && cand.item.kind == "dicom" &&
-        std::find(options.modalities.begin(), options.modalities.end(), it.modality) ==
-            options.modalities.end()) {
-      reason = fmt::format("filtered out: modality {} is not {}", it.modality.empty() ? "(none)" : it.modality,
-                           fmt::join(options.modalities, " or "));
-    } else if (options.minSlices > 0 && it.dims[2] < options.minSlices) {
-      reason = fmt::format("filtered out: {} slices, fewer than {}", it.dims[2], options.minSlices);
-    } else if ((!options.studyDateFrom.empty() || !options.studyDateTo.empty()) &&
-               (it.studyDate.empty() ||
-                (!options.studyDateFrom.empty() && it.studyDate < options.studyDateFrom) ||
-                (!options.studyDateTo.empty() && it.studyDate > options.studyDateTo))) {
-      reason = fmt::format("filtered out: study date {} outside {}..{}",
-                           it.studyDate.empty() ? "(none)" : it.studyDate, options.studyDateFrom,
-                           options.studyDateTo);
-    } else if (description && !std::regex_search(it.description, *description)) {
-      reason = fmt::format("filtered out: description does not match '{}'", options.descriptionRegex);
-    }
-    if (!reason.empty()) {
-      c.plan.skipped.push_back({cand.firstFile, it.seriesUid, it.seriesNumber, it.description, reason});
-    } else {
-      kept.push_back(std::move(cand));
-    }
+// Why the filters leave a candidate out, or "" when they keep it.
+std::string filteredOut(const WorkItem& it, const PlanOptions& options, const std::optional<std::regex>& description) {
+  if (!options.modalities.empty() && it.kind == "dicom" &&
+      std::find(options.modalities.begin(), options.modalities.end(), it.modality) == options.modalities.end()) {
+    return fmt::format("filtered out: modality {} is not {}", it.modality.empty() ? "(none)" : it.modality,
+                       fmt::join(options.modalities, " or "));
   }
+  if (options.minSlices > 0 && it.dims[2] < options.minSlices) {
+    return fmt::format("filtered out: {} slices, fewer than {}", it.dims[2], options.minSlices);
+  }
+  if ((!options.studyDateFrom.empty() || !options.studyDateTo.empty()) &&
+      (it.studyDate.empty() || (!options.studyDateFrom.empty() && it.studyDate < options.studyDateFrom) ||
+       (!options.studyDateTo.empty() && it.studyDate > options.studyDateTo))) {
+    return fmt::format("filtered out: study date {} outside {}..{}", it.studyDate.empty() ? "(none)" : it.studyDate,
+                       options.studyDateFrom, options.studyDateTo);
+  }
+  if (description && !std::regex_search(it.description, *description)) {
+    return fmt::format("filtered out: description does not match '{}'", options.descriptionRegex);
+  }
+  return "";
+}
 
-  // Content hashes (every byte of every file: the slow part of planning), in parallel.
-  std::vector<std::string> hashErrors(kept.size());
+// Content hashes (every byte of every file: the slow part of planning), in parallel; an
+// item's error (a file gone or unreadable) in `errors`.
+std::vector<std::string> hashContents(std::vector<Candidate>& kept, const PlanOptions& options) {
+  std::vector<std::string> errors(kept.size());
   std::mutex progressMutex;
   std::size_t hashed = 0;
   tbb::parallel_for(std::size_t{0}, kept.size(), [&](std::size_t i) {
@@ -390,15 +383,45 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
       }
       it.contentHash = combinedContentHash(it.fileHashes);
     } catch (const std::exception& e) {
-      hashErrors[i] = e.what();
+      errors[i] = e.what();
     }
     if (options.progress) {
       std::lock_guard lock(progressMutex);
       options.progress("hashing", ++hashed, kept.size());
     }
   });
+  return errors;
+}
 
-  // Stable order (archive, then series number, UID, path), names, indices.
+// The store's path relative to the output folder, from the template; `taken` makes clashing
+// names unique (-2, -3, ...).
+std::string outputName(const Candidate& cand, const PlanOptions& options, std::set<std::string>& taken) {
+  const WorkItem& it = cand.item;
+  auto field = [&](const std::string& name) -> std::optional<std::string> {
+    if (name == "PatientID-hash") return it.kind == "dicom" ? it.patientIdHash : "no-patient-id";
+    if (name == "PatientID") return cand.patientId;
+    if (name == "PatientName") return cand.patientName;
+    if (name == "StudyInstanceUID") return it.kind == "dicom" ? it.studyUid : "files";
+    if (name == "StudyDate") return it.studyDate;
+    if (name == "SeriesInstanceUID") return it.seriesUid;
+    if (name == "SeriesNumber") return std::to_string(it.seriesNumber);
+    if (name == "SeriesDescription") return it.kind == "dicom" ? it.description : cand.fileName;
+    if (name == "Modality") return it.modality;
+    if (name == "Index") return std::to_string(it.index);
+    if (name == "FileName") return cand.fileName;
+    return std::nullopt;
+  };
+  std::string relative = expandTemplate(options.outputTemplate, field);
+  const std::string stem = relative.substr(0, relative.size() - std::string(".octoray").size());
+  for (int n = 2; taken.contains(relative); ++n) relative = fmt::format("{}-{}.octoray", stem, n);
+  taken.insert(relative);
+  return relative;
+}
+
+// Items in a stable order (archive, then series number, UID, path), with indices, names and
+// files relative to their folder; candidates whose hashing failed are skipped with the reason.
+void addItems(Plan& plan, std::vector<Candidate>& kept, const std::vector<std::string>& hashErrors,
+              const PlanOptions& options) {
   std::vector<std::size_t> order(kept.size());
   for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
@@ -412,36 +435,44 @@ Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& optio
     Candidate& cand = kept[i];
     WorkItem& it = cand.item;
     if (!hashErrors[i].empty()) {
-      c.plan.skipped.push_back({cand.firstFile, it.seriesUid, it.seriesNumber, it.description, hashErrors[i]});
+      plan.skipped.push_back({cand.firstFile, it.seriesUid, it.seriesNumber, it.description, hashErrors[i]});
       continue;
     }
-    it.index = static_cast<int64_t>(c.plan.items.size());
+    it.index = static_cast<int64_t>(plan.items.size());
     it.patientIdHash = it.kind == "dicom" ? patientIdHash(cand.patientId, options.idSalt) : "";
-    auto field = [&](const std::string& name) -> std::optional<std::string> {
-      if (name == "PatientID-hash") return it.kind == "dicom" ? it.patientIdHash : "no-patient-id";
-      if (name == "PatientID") return cand.patientId;
-      if (name == "PatientName") return cand.patientName;
-      if (name == "StudyInstanceUID") return it.kind == "dicom" ? it.studyUid : "files";
-      if (name == "StudyDate") return it.studyDate;
-      if (name == "SeriesInstanceUID") return it.seriesUid;
-      if (name == "SeriesNumber") return std::to_string(it.seriesNumber);
-      if (name == "SeriesDescription") return it.kind == "dicom" ? it.description : cand.fileName;
-      if (name == "Modality") return it.modality;
-      if (name == "Index") return std::to_string(it.index);
-      if (name == "FileName") return cand.fileName;
-      return std::nullopt;
-    };
-    std::string relative = expandTemplate(options.outputTemplate, field);
-    // Two series that name the same store (same number and description): -2, -3, ...
-    const std::string stem = relative.substr(0, relative.size() - std::string(".octoray").size());
-    for (int n = 2; outputs.contains(relative); ++n) relative = fmt::format("{}-{}.octoray", stem, n);
-    outputs.insert(relative);
-    it.output = (fs::path(c.plan.outDir) / relative).string();
+    it.output = (fs::path(plan.outDir) / outputName(cand, options, outputs)).string();
     const fs::path folder = commonFolder(it.files);
     it.folder = folder.string();
     for (auto& f : it.files) f = fs::path(f).lexically_relative(folder).string();
-    c.plan.items.push_back(std::move(it));
+    plan.items.push_back(std::move(it));
   }
+}
+
+}  // namespace
+
+Plan makePlan(const std::vector<std::string>& archives, const PlanOptions& options) {
+  const std::optional<std::regex> description = checkPlanOptions(options);  // before the (long) scan
+  Collector c;
+  c.plan.created = isoNow();
+  c.plan.outDir = fs::absolute(options.outDir).lexically_normal().string();
+  c.plan.outputTemplate = options.outputTemplate;
+  for (const auto& archive : archives) {
+    c.plan.archives.push_back(fs::absolute(archive).lexically_normal().string());
+    scanArchive(c.plan.archives.back(), options, c);
+  }
+  c.plan.filters = filtersJson(options);
+
+  std::vector<Candidate> kept;
+  for (auto& cand : c.candidates) {
+    const std::string reason = filteredOut(cand.item, options, description);
+    if (reason.empty()) {
+      kept.push_back(std::move(cand));
+    } else {
+      const WorkItem& it = cand.item;
+      c.plan.skipped.push_back({cand.firstFile, it.seriesUid, it.seriesNumber, it.description, reason});
+    }
+  }
+  addItems(c.plan, kept, hashContents(kept, options), options);
   std::stable_sort(c.plan.skipped.begin(), c.plan.skipped.end(),
                    [](const SkippedSource& a, const SkippedSource& b) { return a.path < b.path; });
   if (c.plan.items.empty()) {
