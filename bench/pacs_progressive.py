@@ -1,4 +1,4 @@
-#!/usr/bin/env python3
+#!/usr/bin/python3
 """How soon octoray-view shows a series it retrieves from a PACS (issue 13).
 
 A real Orthanc on loopback (tests/viewer/orthanc.py) holds the 140-slice Philips 1 mm head of
