@@ -12,8 +12,10 @@
 #     REPEATS runs each (OTHER_REPEATS for occlusion, both and rays-nobudget): median and p95 frame time, time to first image, time to the
 #     converged image after the camera stops, bytes read, peak RSS, final working set; the
 #     per-phase split of the frame (select, upload, raycast, feedback) from the first run.
-#  2. Convergence: the last frame of each `rays` run against a still render of the same
-#     camera with feedback off, same LOD (octoray-render --camera --visibility none), PSNR.
+#  2. Convergence: the last frame of the first `rays` run against the CPU reference rendered
+#     over the same LOD cut (--cut-reference: only the cut's bricks are read, so it works where
+#     the full-resolution reference, 17 GiB of floats here, cannot), and against a still
+#     render of the same camera with feedback off, same LOD (--camera --visibility none), PSNR.
 #  3. Visibility: converged working sets of still, zoomed views (ZOOMS) with a pool large
 #     enough not to bound them (--pool-mib VIS_POOL_MIB), for an opaque bone TF and the
 #     semi-transparent soft-tissue preset: bricks with each feedback and without, the bricks
@@ -98,9 +100,11 @@ for config in $configs; do
     dir=$out/path/$config/run$r
     mkdir -p "$dir"
     echo "== path $config, run $r"
+    cut_reference=()
+    [[ $visibility == rays && $r == 1 && $budget == 64 ]] && cut_reference=(--cut-reference "$dir/cut-reference.png")
     "$bin/octoray-render" "$store" -o "$dir/last.png" --preset bone --size "$size" --path "$path" \
       --visibility "$visibility" --upload-mib-per-frame "$budget" --pool-mib "$pool" \
-      --cache-mib "$cache" --stats "$dir/frames.csv" --save-camera "$dir/camera.json" --json \
+      --cache-mib "$cache" --stats "$dir/frames.csv" --save-camera "$dir/camera.json" --json "${cut_reference[@]}" \
       > "$dir/report.json" 2> "$dir/stderr.txt"
     if [[ $visibility == rays && $r == 1 ]]; then
       # 2. Convergence: the still render of the last camera, feedback off, same LOD.
@@ -176,6 +180,13 @@ with open(results, "a") as jl:
         c = json.load(open(compare))
         lines += ["", f"Converged `rays` path frame against the still render of its camera with feedback off: PSNR {db(c['psnrDb'])} dB, SSIM {c['ssim']:.4f}."]
         jl.write(json.dumps({"part": "convergence", **c}) + "\n")
+    for report in sorted(glob.glob(f"{out}/path/rays/run1/report.json")):
+        r = json.load(open(report))
+        c = r.get("cutReference") or {}
+        if c:
+            lines += [f"The same frame against the CPU reference over its LOD cut ({c['leaves']} leaves, up to {c['coarsestLevelsAboveLeaf']} levels above the leaf level; converged: {r['converged']}): "
+                      f"PSNR {db(c['psnrDb'])} dB, SSIM {c['ssim']:.4f}, max |error| {c['maxAbsError']:.3f}; the reference took {c['timingMs']['load'] / 1000:.1f} s to read the cut and {c['timingMs']['render'] / 1000:.1f} s to render."]
+            jl.write(json.dumps({"part": "cut-reference", **c}) + "\n")
     lines += ["", "| view | zoom | without feedback | sampled by rays | rays | occlusion | both | PSNR rays / occlusion / both dB | left of the removable: rays / occlusion / both |",
               "|---|---|---|---|---|---|---|---|---|"]
     for view_dir in sorted(glob.glob(f"{out}/visibility/*/zoom*")):

@@ -63,12 +63,11 @@ Vec3 indexPoint(const Vec3& origin, const Vec3& direction, double t) {
 double sampleAt(const ReferenceVolume& v, const Vec3& p) { return v.sample(p.x, p.y, p.z); }
 
 // Gradient of the trilinear interpolant in patient space (value units per mm): central
-// differences of +-1 voxel in index space, then the inverse transpose of the linear part.
+// differences in index space (ReferenceVolume::gradientIndex: +-1 voxel, or for an LOD cut
+// +-h voxels of the leaf's level), then the inverse transpose of the linear part.
 Vec3 gradientPatient(const Frame& f, const Vec3& p) {
-  const ReferenceVolume& v = *f.volume;
-  const double gi = 0.5 * (v.sample(p.x + 1, p.y, p.z) - v.sample(p.x - 1, p.y, p.z));
-  const double gj = 0.5 * (v.sample(p.x, p.y + 1, p.z) - v.sample(p.x, p.y - 1, p.z));
-  const double gk = 0.5 * (v.sample(p.x, p.y, p.z + 1) - v.sample(p.x, p.y, p.z - 1));
+  const Vec3 g = f.volume->gradientIndex(p);
+  const double gi = g.x, gj = g.y, gk = g.z;
   const auto& m = f.indexFromPatient.m;  // linear part = inverse of patientFromIndex's
   return {m[0][0] * gi + m[1][0] * gj + m[2][0] * gk, m[0][1] * gi + m[1][1] * gj + m[2][1] * gk,
           m[0][2] * gi + m[1][2] * gj + m[2][2] * gk};
@@ -467,6 +466,11 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
                                        const RenderOptions& options) const {
   camera.validate();
   checkOptions(options, tf);
+  if (volume_.isCut() && options.mode == RenderMode::Mip) {
+    // The exact maximum splits chords at the leaf level's voxel-centre planes; a coarse leaf's
+    // interpolant has other planes.
+    throw Error("", "the reference renders DVR and isosurfaces over an LOD cut, not MIP");
+  }
   Frame f;
   f.volume = &volume_;
   f.tf = &tf;

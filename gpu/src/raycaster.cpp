@@ -289,10 +289,10 @@ void Raycaster::Impl::uploadTransferFunction(const transfer::TransferFunction& t
     sHi = std::min(sHi, hi);
     std::vector<std::array<float, 4>> zeros;
     const std::vector<std::array<float, 4>>* data = &zeros;
-    std::optional<transfer::SegmentExtinctionTable> table;
+    std::optional<transfer::SegmentExtinctionTable> segments;
     if (sLo < sHi) {
-      table.emplace(tf, sLo, sHi, kPreintegrationBins);
-      data = &table->data();
+      segments.emplace(tf, sLo, sHi, kPreintegrationBins);
+      data = &segments->data();
       preintegrationRange = {static_cast<float>(sLo), static_cast<float>(sHi)};
     } else {
       // No material in the data's range (or a single value): an all-transparent table.

@@ -10,7 +10,8 @@
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
-//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]]
+//      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]
+//      [--cut-reference REF.png]]  (the CPU reference over the GPU picture's LOD cut)
 //     | --reference [--converge [--converge-max-change D] [--converge-psnr DB]]
 //     [--preintegration on|off | --jitter]  (DVR, both renderers)
 // --path renders a camera path one frame each, with the working set carried across frames
@@ -76,6 +77,7 @@ struct Arguments {
   std::string visibility = "rays", cameraPath, statsOut;
   int visibilityThreshold = 4;
   std::string boundary, silhouette, clip;
+  std::string cutReference;  // PNG: the CPU reference over the GPU picture's LOD cut
   // Set by resolveDefaults() when neither --preset nor --tf was given.
   std::optional<transfer::TransferFunction> defaultTf;
 };
@@ -475,9 +477,49 @@ int runReference(const Arguments& a) {
   return a.converge && !converged.converged ? 3 : 0;
 }
 
+// --cut-reference: the CPU reference over the LOD cut the GPU picture was drawn from (the same
+// camera, TF, options and step; ReferenceVolume::fromCut reads only the cut's bricks), written
+// as a PNG and compared with the GPU picture. What checks a converged picture of a volume too
+// large for the full-resolution reference.
+nlohmann::json cutReference(const Arguments& a, const volume::StoreReader& store,
+                            const gpu::GpuRenderer& renderer, const gpu::Camera& camera,
+                            const transfer::TransferFunction& tf, const gpu::Image& gpuImage) {
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<gpu::reference::CutLeafRef> leaves;
+  for (const gpu::CutLeaf& leaf : renderer.workingSet().cut()) leaves.push_back({leaf.key, leaf.dataLevelsUp});
+  const auto volume = gpu::reference::ReferenceVolume::fromCut(store, leaves);
+  const double loadMs = millisecondsSince(start);
+  RenderOptions options = renderOptions(a);
+  options.stepMm = a.stepMm > 0 ? a.stepMm : renderer.defaultStepMm();
+  const auto result = gpu::reference::ReferenceRenderer(volume).render(camera, tf, options);
+  const double renderMs = millisecondsSince(start) - loadMs;
+  gpu::writeImageOutputs(result.image, {a.cutReference, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, ""});
+  const gpu::ImageMetrics m = gpu::compare(result.image, gpuImage);
+  int64_t coarsest = 0;
+  for (const gpu::CutLeaf& leaf : renderer.workingSet().cut()) {
+    coarsest = std::max<int64_t>(coarsest, store.layout().leafLevel() - (leaf.key.level - leaf.dataLevelsUp));
+  }
+  const nlohmann::json report = {
+      {"output", a.cutReference},
+      {"leaves", leaves.size()},
+      {"coarsestLevelsAboveLeaf", coarsest},
+      {"stepMm", options.stepMm},
+      {"psnrDb", std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json("inf")},
+      {"ssim", m.ssim},
+      {"maxAbsError", m.maxAbsError},
+      {"timingMs", {{"load", loadMs}, {"render", renderMs}}}};
+  if (!a.json) {
+    fmt::print("{}: CPU reference over the same cut ({} leaves, up to {} levels above the leaf "
+               "level), {:.1f} dB, SSIM {:.4f}, in {:.0f} ms\n",
+               a.cutReference, leaves.size(), coarsest, m.psnrDb, m.ssim, loadMs + renderMs);
+  }
+  return report;
+}
+
 // --path: one renderFrame() per camera, the working set carried across frames and bricks
 // streamed in the background; the per-frame records to --stats, the last frame to -o.
-int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::TransferFunction& tf,
+int runPath(const Arguments& a, const volume::StoreReader& store, gpu::GpuRenderer& renderer,
+            const transfer::TransferFunction& tf,
             gpu::RaycastOptions options, const gpu::VolumeDomain& domain,
             const gpu::GlContext& context, double setupMs) {
   gpu::OrbitParameters start = orbitParameters(a);
@@ -528,7 +570,10 @@ int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::Tran
   writeOutputs(last.image, a);
   if (!a.statsOut.empty()) writeStats(frames, a.statsOut);
 
-  const auto [rss, peak] = residentMib();
+  const auto [rss, peak] = residentMib();  // the path's, before the check below
+  // The last frame's cut is the one the working set holds until the next update.
+  nlohmann::json cutCheck;
+  if (!a.cutReference.empty()) cutCheck = cutReference(a, store, renderer, cameras.back(), tf, last.image);
   const double medianMs = percentile(framesMs, 0.5), p95Ms = percentile(framesMs, 0.95);
   if (a.json) {
     const nlohmann::json report = {
@@ -556,6 +601,8 @@ int runPath(const Arguments& a, gpu::GpuRenderer& renderer, const transfer::Tran
         {"maxCacheBytes", maxCacheBytes},
         {"peakRssMib", peak},
         {"finalWorkingSetBricks", last.stats.workingSetBricks},
+        {"converged", convergedMs.has_value()},
+        {"cutReference", cutCheck},
         {"errors", errors},
         {"frames", frames},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
@@ -643,7 +690,7 @@ int runGpu(const Arguments& a) {
   config.visibilityThreshold = a.visibilityThreshold;
   gpu::GpuRenderer renderer(store, config);
   const double setupMs = millisecondsSince(start);
-  if (!a.cameraPath.empty()) return runPath(a, renderer, tf, options, domain, *context, loadMs + setupMs);
+  if (!a.cameraPath.empty()) return runPath(a, store, renderer, tf, options, domain, *context, loadMs + setupMs);
 
   // The timing loop: each frame's ms is the whole render() call (working-set selection,
   // uploads, index, the raycasting pass finished, read-back). With --json each frame is then
@@ -693,6 +740,14 @@ int runGpu(const Arguments& a) {
   }
 
   writeOutputs(first.image, a);
+  nlohmann::json cutCheck;
+  if (!a.cutReference.empty()) {
+    // Frame 0's view converged again: later frames (--frames, --json's counting pass) may
+    // have moved the working set to another cut.
+    options.stats = false;
+    const gpu::Frame again = renderer.render(camera, tf, options);
+    cutCheck = cutReference(a, store, renderer, camera, tf, again.image);
+  }
 
   // A pool too small for the cut the view asks for draws some places coarser than
   // --lod-pixels: said, never silent.
@@ -726,6 +781,7 @@ int runGpu(const Arguments& a) {
         {"medianOf", cli::steadyFramesDescription(framesMs.size())},
         {"frames", frames},
         {"imageAdaptiveError", adaptiveError},
+        {"cutReference", cutCheck},
         {"warnings", warnings},
         {"camera", gpu::cameraToJson(camera)},
         {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
@@ -741,7 +797,7 @@ int runGpu(const Arguments& a) {
 
 // Output folders are checked before the (possibly long) rendering.
 void checkOutputFolders(const Arguments& a) {
-  for (const std::string& out : {a.output, a.exr}) {
+  for (const std::string& out : {a.output, a.exr, a.cutReference}) {
     if (out.empty()) continue;
     const std::filesystem::path folder = std::filesystem::absolute(out).parent_path();
     std::error_code ec;
@@ -889,6 +945,9 @@ int main(int argc, char** argv) {
                  "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--cut-reference", a.cutReference,
+                 "GPU: also render the CPU reference over the LOD cut of the GPU picture (the last "
+                 "frame of --path) to this PNG and report their agreement (DVR and iso)");
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
   try {
     app.parse(argc, argv);
@@ -907,8 +966,18 @@ int main(int argc, char** argv) {
         }
       }
     }
+    if (!a.cutReference.empty()) {
+      // What the reference does not model, or models differently.
+      for (const char* gpuOnly : {"--gradient-pool", "--boundary", "--silhouette", "--clip",
+                                  "--image-adaptive", "--mip"}) {
+        if (app.count(gpuOnly) > 0) {
+          throw CLI::ValidationError("--cut-reference", fmt::format("cannot check {}", gpuOnly));
+        }
+      }
+      if (a.mode == "mip") throw CLI::ValidationError("--cut-reference", "checks DVR and iso, not MIP");
+    }
     if (a.reference) {
-      for (const char* gpuOnly : {"--lod-pixels", "--frames", "--orbit", "--pool-mib",
+      for (const char* gpuOnly : {"--cut-reference", "--lod-pixels", "--frames", "--orbit", "--pool-mib",
                                   "--gradient-pool", "--boundary", "--silhouette", "--clip",
                                   "--no-cell-skipping", "--mip", "--cache-mib",
                                   "--upload-mib-per-frame", "--visibility",

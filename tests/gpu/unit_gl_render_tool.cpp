@@ -205,6 +205,33 @@ TEST_F(GpuRenderTool, CorruptedBrickFailsTheRenderNamingTheStore) {
 }
 
 
+// --cut-reference: the CPU reference over the cut of the path's last (converged) frame; what
+// the tool reports is what the files hold.
+TEST_F(GpuRenderTool, CutReferenceChecksTheConvergedPictureOfAPath) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const std::string out = (dir / "path.png").string(), ref = (dir / "cut.png").string();
+  const ProcessResult r = runProcess({render, store, "-o", out, "--preset", "bone", "--size", "64x64",
+                                      "--lod-pixels", "2", "--path", "orbit:4,degrees:40,still:16",
+                                      "--cut-reference", ref, "--json"});
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  const auto report = nlohmann::json::parse(r.out);
+  ASSERT_TRUE(report["converged"].get<bool>());
+  const auto& c = report["cutReference"];
+  EXPECT_EQ(c["output"], ref);
+  EXPECT_GT(c["leaves"].get<int>(), 0);
+  EXPECT_GE(c["coarsestLevelsAboveLeaf"].get<int>(), 1) << "LOD 2 at 64x64 draws coarse levels";
+  const ImageMetrics m = compare(readImage(ref), readImage(out));
+  EXPECT_GE(m.psnrDb, 40.0);
+  EXPECT_NEAR(c["psnrDb"].get<double>(), m.psnrDb, 1.0) << "the report is about these pictures";
+  // What the reference does not model is refused before anything is rendered.
+  const std::string mipOut = (dir / "mip.png").string();
+  const ProcessResult mip = runProcess({render, store, "-o", mipOut, "--mode", "mip", "--cut-reference", ref});
+  EXPECT_EQ(mip.exitCode, 2) << mip.err;
+  EXPECT_NE(mip.err.find("--cut-reference"), std::string::npos) << mip.err;
+  EXPECT_FALSE(std::filesystem::exists(mipOut));
+}
+
 // --path: one frame per camera with the working set carried across frames, per-frame figures
 // to CSV and JSON, the camera stopping and the picture converging, a camera-list file, and
 // bad paths refused with a message.

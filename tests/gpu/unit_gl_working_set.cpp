@@ -5,7 +5,8 @@
 // here from the TF's control points, not by the code under test), no ray may cross a hole
 // (every empty leaf a ray of the CPU traversal mirror crosses is truly empty), caches stay in
 // budget, the picture converges to the static one when the camera stops, feedback shrinks the
-// set without changing the picture, a new TF reloads nothing cached, and a brick corrupted on
+// set without changing the picture, the converged picture of a path matches the CPU reference
+// rendered over the same LOD cut, a new TF reloads nothing cached, and a brick corrupted on
 // disk mid-session gives one error and its ancestor.
 
 #include <gtest/gtest.h>
@@ -29,6 +30,7 @@
 #include "octoray/gpu/gpu_renderer.h"
 #include "octoray/gpu/image_metrics.h"
 #include "octoray/gpu/occlusion.h"
+#include "octoray/gpu/reference/reference_renderer.h"
 #include "octoray/gpu/spatial_index.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/volume/phantom.h"
@@ -383,6 +385,56 @@ TEST_F(WorkingSetTest, VisibilityFeedbackShrinksTheSetButNotThePicture) {
     }
     EXPECT_TRUE(context_->takeErrors().empty());
   }
+}
+
+// The acceptance's check of a converged picture, on a cut of several levels: after a path with
+// ray feedback and an upload budget the camera stops; once the working set settles, the
+// picture must match the CPU reference rendered over the very cut it was drawn from (only the
+// cut's bricks read), closer than it matches the full-resolution reference.
+TEST_F(WorkingSetTest, ConvergedPictureMatchesTheCpuReferenceOverItsCut) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.lodPixels = 2;  // coarse: leaves of several levels
+  OrbitParameters start;
+  start.width = start.height = 112;
+  const std::vector<Camera> path = cameraPath("orbit:8,degrees:90,zoom-from:1,zoom-to:1.8", domainOf(store), start);
+  RendererConfig config;
+  config.visibility = Visibility::Rays;
+  config.uploadBytesPerFrame = 8 * 20 * 20 * 20 * 2;
+  GpuRenderer renderer(store, config);
+  for (const Camera& c : path) renderer.renderFrame(c, tf, options);
+  Frame last;
+  int frames = 0;
+  do {
+    last = renderer.renderFrame(path.back(), tf, options);
+    if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  } while (!renderer.workingSet().settled() && ++frames < 200);
+  ASSERT_TRUE(renderer.workingSet().settled());
+  ASSERT_GT(coverage(last.image), 0.1);
+
+  std::vector<reference::CutLeafRef> leaves;
+  std::set<int> levels;
+  for (const CutLeaf& leaf : renderer.workingSet().cut()) {
+    leaves.push_back({leaf.key, leaf.dataLevelsUp});
+    levels.insert(leaf.key.level - leaf.dataLevelsUp);
+  }
+  ASSERT_GE(levels.size(), 2u) << "the check needs a cut of several levels";
+  reference::RenderOptions ro;
+  ro.stepMm = renderer.defaultStepMm();
+  const reference::ReferenceVolume overCut = reference::ReferenceVolume::fromCut(store, leaves);
+  const Image cpu = reference::ReferenceRenderer(overCut).render(path.back(), tf, ro).image;
+  const ImageMetrics m = compare(cpu, last.image);
+  EXPECT_GE(m.psnrDb, 40.0) << "SSIM " << m.ssim;
+  const reference::ReferenceVolume full = reference::ReferenceVolume::fromStore(store);
+  const Image fine = reference::ReferenceRenderer(full).render(path.back(), tf, ro).image;
+  const double fullPsnr = compare(fine, last.image).psnrDb;
+  RecordProperty("psnrOverCutDb", std::to_string(m.psnrDb));
+  RecordProperty("psnrFullDb", std::to_string(fullPsnr));
+  RecordProperty("dataLevels", static_cast<int>(levels.size()));
+  EXPECT_GT(m.psnrDb, fullPsnr + 3.0)
+      << "the picture is the cut's: the reference over the cut must be the closer one";
 }
 
 TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {

@@ -38,7 +38,8 @@
 // Shading (Material.shade): Phong with a headlight (light and eye along -ray direction, white
 // light of intensity 1): c·(ka + kd·|n·l|) + ks·max(0, r·v)^p, two-sided. The normal is the
 // normalised gradient of the trilinear interpolant, taken by central differences of ±1 voxel
-// in index space and carried to patient space by the inverse transpose of patientFromIndex's
+// in index space (over an LOD cut: of +-h voxels of the leaf's level, reference_volume.h)
+// and carried to patient space by the inverse transpose of patientFromIndex's
 // linear part (anisotropic spacing and shear respected). Where the gradient is exactly zero
 // (constant regions) the normal is undefined: diffuse and specular terms are 0, ambient stays;
 // never a NaN.
@@ -63,6 +64,7 @@
 // clamp plane; on each piece the interpolant is a cubic in t, maximised at the ends and at
 // its critical points. The pixel is the TF's colour and opacity at the maximum (VTK's MIP),
 // premultiplied; depth is the distance to the (first) maximum; `value` holds the maximum.
+// Full-resolution volumes only: over an LOD cut render() refuses MIP.
 //
 // Rows run in parallel (TBB); each pixel depends only on its ray, so output is deterministic.
 
