@@ -79,6 +79,7 @@ Frame GpuRenderer::renderFrame(const Camera& camera, const transfer::TransferFun
 
   const WorkingSetOptions wso = workingSetOptions(options);
   const std::vector<CutLeaf>& cut = im.workingSet.update(camera, tf, wso);
+  if (im.config.repackWhenSettled && im.workingSet.settled()) im.workingSet.repack();
   const auto indexStart = std::chrono::steady_clock::now();
   im.index = SpatialIndex::build(im.store.layout(), cut);
   const double indexMs = millisecondsSince(indexStart);

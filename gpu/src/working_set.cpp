@@ -212,10 +212,39 @@ WorkingSet::WorkingSet(const volume::StoreReader& store, BrickPool& pool, volume
     : store_(store), pool_(pool), cache_(cache), loader_(loader), config_(config),
       layout_(store.layout()) {
   // The root stands in for everything not yet loaded: read it now, keep it for good.
-  auto root = std::make_shared<const volume::Brick>(store.readBrick(0));
-  cache_.insert(root);
+  root_ = std::make_shared<const volume::Brick>(store.readBrick(0));
+  cache_.insert(root_);
   pool_.beginFrame();
-  if (!upload(*root)) throw Error(store.path(), "the GPU pool has no slot for the root brick");
+  if (!upload(*root_)) throw Error(store.path(), "the GPU pool has no slot for the root brick");
+}
+
+bool WorkingSet::repack() {
+  // The cut's data nodes (a leaf's own or the ancestor's it is drawn from) and the root.
+  std::vector<int64_t> data{0};
+  std::vector<int64_t> dataOfLeaf(cut_.size());
+  for (std::size_t i = 0; i < cut_.size(); ++i) {
+    dataOfLeaf[i] = pool_.nodeIn(cut_[i].slot);
+    data.push_back(dataOfLeaf[i]);
+  }
+  std::sort(data.begin(), data.end());
+  data.erase(std::unique(data.begin(), data.end()), data.end());
+  bool inOrder = pool_.stats().slotsUsed == static_cast<int64_t>(data.size());
+  for (std::size_t k = 0; inOrder && k < data.size(); ++k) inOrder = pool_.slotOf(data[k]) == static_cast<int64_t>(k);
+  if (inOrder) return true;
+  std::vector<std::shared_ptr<const volume::Brick>> bricks;
+  bricks.reserve(data.size());
+  for (int64_t id : data) {
+    bricks.push_back(id == 0 ? root_ : cache_.find(id));
+    if (!bricks.back()) return false;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  pool_.clear();  // an empty pool hands out slots 0, 1, 2, ... in turn
+  for (const auto& brick : bricks) {
+    if (!upload(*brick)) throw std::logic_error("working set: an emptied pool refused a brick");
+  }
+  for (std::size_t i = 0; i < cut_.size(); ++i) cut_[i].slot = static_cast<uint32_t>(pool_.slotOf(dataOfLeaf[i]));
+  stats_.uploadMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return true;
 }
 
 bool WorkingSet::upload(const volume::Brick& brick) {

@@ -437,6 +437,49 @@ TEST_F(WorkingSetTest, ConvergedPictureMatchesTheCpuReferenceOverItsCut) {
       << "the picture is the cut's: the reference over the cut must be the closer one";
 }
 
+// repackWhenSettled: a settled cut sits in the pool's first slots in node order, so the same
+// view converged after any history is the same picture, float for float (without it, bricks
+// in other slots round their texture coordinates differently: test above).
+TEST_F(WorkingSetTest, RepackedConvergedViewIsTheSamePictureWhateverTheHistory) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.lodPixels = 0.5;
+  OrbitParameters start;
+  start.width = start.height = 96;
+  const std::vector<Camera> path = cameraPath("orbit:12,degrees:200,zoom-from:1,zoom-to:2.5", domainOf(store), start);
+  RendererConfig config;
+  config.visibility = Visibility::Rays;
+  config.repackWhenSettled = true;
+  Frame fresh;
+  {
+    GpuRenderer renderer(store, config);
+    fresh = renderer.render(path.back(), tf, options);
+  }
+  GpuRenderer renderer(store, config);
+  for (const Camera& c : path) renderer.renderFrame(c, tf, options);
+  Frame last;
+  int frames = 0;
+  do {
+    last = renderer.renderFrame(path.back(), tf, options);
+    if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  } while (!(renderer.workingSet().settled() && last.stats.workingSet.uploaded == 0) && ++frames < 200);
+  ASSERT_TRUE(renderer.workingSet().settled());
+  ASSERT_GT(coverage(last.image), 0.1);
+  EXPECT_EQ(last.stats.workingSet.leaves, fresh.stats.workingSet.leaves);
+  // Slots 0 .. n-1 hold the cut's bricks in node order, and nothing else is resident.
+  std::vector<int64_t> data{0};
+  for (const CutLeaf& leaf : renderer.workingSet().cut()) data.push_back(renderer.pool().nodeIn(leaf.slot));
+  std::sort(data.begin(), data.end());
+  data.erase(std::unique(data.begin(), data.end()), data.end());
+  EXPECT_EQ(renderer.pool().stats().slotsUsed, static_cast<int64_t>(data.size()));
+  for (std::size_t k = 0; k < data.size(); ++k) EXPECT_EQ(renderer.pool().slotOf(data[k]), static_cast<int64_t>(k));
+  const ImageMetrics m = compare(fresh.image, last.image);
+  EXPECT_EQ(m.maxAbsError, 0.0) << m.psnrDb << " dB";
+  EXPECT_EQ(m.maxAlphaError, 0.0);
+}
+
 TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const volume::StoreReader store(phantomStore().string());

@@ -284,6 +284,7 @@ void App::onDatasetReady() {
   config.poolBytes = options_.poolMib << 20;
   config.cacheBytes = options_.cacheMib << 20;
   config.visibility = gpu::parseVisibility(options_.visibility);
+  config.repackWhenSettled = true;  // a converged view, reloaded, is the same picture
   try {
     view3d_ = std::make_unique<View3d>(*store, config);
     slicer_ = std::make_unique<StoreSlicer>(*store, view3d_->renderer().sharedCache());

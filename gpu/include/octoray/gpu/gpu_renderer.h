@@ -33,6 +33,11 @@ struct RendererConfig {
   Visibility visibility = Visibility::None;
   int visibilityThreshold = 4;  // pixels (rays) a leaf needs to count as seen
   int loaderThreads = 2;
+  // When the working set settles, put the cut's bricks in the pool's first slots in node
+  // order (WorkingSet::repack): a converged view then gives the same pixels whatever the
+  // history (the viewer, for screenshots a reloaded session reproduces). One copy of the
+  // cut from the CPU cache per settled cut.
+  bool repackWhenSettled = false;
 };
 
 class GpuRenderer {

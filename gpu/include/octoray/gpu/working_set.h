@@ -147,6 +147,14 @@ class WorkingSet {
   // camera, TF or LOD change the first frame decides from the previous view's feedback). A
   // working set held back by a full pool or by failed bricks is settled.
   bool settled() const;
+  // Puts the bricks the cut is drawn from into the pool's first slots in node order (the root
+  // first) and drops every other brick from the pool, so that a cut is drawn from the same
+  // texture coordinates whatever the history: the same view gives the same pixels. (Where a
+  // brick sits changes the float rounding of its texture coordinates, and with it the odd
+  // pixel by one grey level.) Copies from the CPU cache only, never the disk; returns false,
+  // changing nothing, when a brick is not cached. Call between update() and drawing; the
+  // frame's upload statistics count the copies. A no-op when the slots are already so.
+  bool repack();
 
  private:
   struct NodeState {
@@ -178,6 +186,7 @@ class WorkingSet {
   volume::BrickLoader& loader_;
   WorkingSetConfig config_;
   const volume::OctreeLayout& layout_;
+  std::shared_ptr<const volume::Brick> root_;  // resident for good (repack() puts it back)
 
   std::vector<CutLeaf> cut_;
   std::vector<int64_t> cutNodes_;
