@@ -395,10 +395,20 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
       stack.pop_back();
       const double pixels = context.projector.projectedPixels(id);
       const bool inFrustum = context.projector.visible(id);
-      const bool want = wantsSplit(id, pixels, inFrustum);
+      bool want = wantsSplit(id, pixels, inFrustum);
       const bool resident = pool_.resident(id);
       const bool wasInner = innerNodes_.count(id) > 0;
       children.clear();
+      // With feedback, a node the view would split but no ray asks finer of (rays cross it
+      // without meeting material) is split all the same when every child is empty: a split
+      // into nothing costs no brick and draws what the finer levels hold, nothing, as the
+      // working set without feedback does. (Kept as a leaf it would hold its own brick.)
+      if (!want && config_.visibility != Visibility::None &&
+          wantsSplitIgnoringFeedback(id, pixels, inFrustum)) {
+        const std::vector<int64_t> all = layout_.children(id);
+        want = std::all_of(all.begin(), all.end(),
+                           [&](int64_t c) { return context.emptiness.empty(store_.node(c)); });
+      }
       if (want) {
         for (int64_t child : layout_.children(id)) {
           if (context.emptiness.empty(store_.node(child))) {
@@ -411,7 +421,8 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
       if (config_.visibility != Visibility::None && wasInner) {
         const auto st = state_.find(id);
         const bool seenNow = st != state_.end() && st->second.seenFrame == lastFeedbackFrame_;
-        if (want && !seenNow) ++stats_.hiddenWaiting;
+        // (A split into nothing has no leaf any feedback could see: it never waits.)
+        if (want && !seenNow && !children.empty()) ++stats_.hiddenWaiting;
         if (!want && lastFeedbackFrame_ > 0 && !seenNow && st != state_.end() &&
             wantsSplitIgnoringFeedback(id, pixels, inFrustum)) {
           st->second.hiddenMergeFrame = frame_;
@@ -569,7 +580,8 @@ const std::vector<CutLeaf>& WorkingSet::update(const Camera& camera,
     }
     leaf.slot = static_cast<uint32_t>(pool_.slotOf(data));
     leaf.maxValue = store_.node(id).maxValue;
-    bricks.insert(data);
+    // An unseen leaf drawn from the root costs no brick: the root is resident for good.
+    if (!(data == 0 && id != 0 && hiddenProxies.count(id))) bricks.insert(data);
     cut_.push_back(leaf);
     cutNodes_.push_back(id);
   };

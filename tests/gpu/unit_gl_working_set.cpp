@@ -15,6 +15,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <iostream>
 #include <random>
 #include <set>
 #include <string>
@@ -24,6 +25,7 @@
 #include "file_damage.h"
 #include "gl_test_support.h"
 #include "octoray/core/error.h"
+#include "octoray/dicom/formats.h"
 #include "octoray/gpu/brick_pool.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/camera_path.h"
@@ -478,6 +480,56 @@ TEST_F(WorkingSetTest, RepackedConvergedViewIsTheSamePictureWhateverTheHistory) 
   const ImageMetrics m = compare(fresh.image, last.image);
   EXPECT_EQ(m.maxAbsError, 0.0) << m.psnrDb << " dB";
   EXPECT_EQ(m.maxAlphaError, 0.0);
+}
+
+// The acceptance's relative bar on real heads, where a view hides little: the default
+// feedback (rays) keeps no more than the bricks some ray samples without feedback plus 20 %
+// of the rest, with the same picture. Nodes no ray asks finer of but whose children are all
+// empty are split into nothing, as without feedback (kept whole, each held a brick of its
+// own: 2-3 bricks over the bar on the tilted head), and unseen leaves drawn from the root
+// cost no brick.
+TEST_F(WorkingSetTest, RealHeadsMeetTheRelativeBar) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  OCTORAY_REQUIRE_PATH(test::philipsDir());
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  for (const char* series : {"S21570/S2020", "S21610/S2010"}) {
+    const auto source = openVolume((test::philipsDir() / series).string());
+    const std::filesystem::path path = test::freshTempDir("gl_working_set_heads") / "head.octoray";
+    volume::BuildOptions build;
+    build.border = 2;
+    volume::buildStore(*source, path.string(), build);
+    const volume::StoreReader store(path.string());
+    for (const double zoom : {1.0, 2.0}) {
+      const std::string where = std::string(series) + " zoom " + std::to_string(zoom);
+      const Camera camera = orbit(store, 30, 10, zoom, 512);
+      RaycastOptions options;
+      GpuRenderer withoutFeedback(store, RendererConfig{});
+      const Frame a = withoutFeedback.render(camera, tf, options);
+      RaycastOptions counting = options;
+      counting.stats = true;
+      const int64_t sampled = withoutFeedback.render(camera, tf, counting).stats.bricksTouched;
+      ASSERT_GT(sampled, 100) << where;
+      RendererConfig config;
+      config.visibility = Visibility::Rays;
+      GpuRenderer withFeedback(store, config);
+      const Frame b = withFeedback.render(camera, tf, options);
+      const int64_t removable = a.stats.workingSetBricks - sampled;
+      EXPECT_LE(b.stats.workingSetBricks * 5, sampled * 5 + removable)
+          << where << ": without feedback " << a.stats.workingSetBricks << ", sampled " << sampled
+          << ", with " << b.stats.workingSetBricks;
+      EXPECT_GE(compare(a.image, b.image).psnrDb, 40.0) << where;
+      // Feedback only keeps nodes coarser: each of its leaves is a leaf without feedback, or
+      // an ancestor of one (never a node the cut without feedback split into nothing).
+      std::set<int64_t> covered(withoutFeedback.workingSet().cutNodes().begin(),
+                                withoutFeedback.workingSet().cutNodes().end());
+      for (int64_t id : withoutFeedback.workingSet().cutNodes()) {
+        for (int64_t n = store.layout().parent(id); n >= 0; n = store.layout().parent(n)) covered.insert(n);
+      }
+      for (int64_t id : withFeedback.workingSet().cutNodes()) {
+        EXPECT_TRUE(covered.count(id)) << where << ": leaf " << id << " covers nothing the cut without feedback draws";
+      }
+    }
+  }
 }
 
 TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {

@@ -25,6 +25,9 @@ int showStartupError(const std::string& message, const std::string& screenshot, 
   glfwDefaultWindowHints();
   GLFWwindow* window = glfwCreateWindow(760, 260, "octoray-view: cannot start", nullptr, nullptr);
   if (!window) {
+    const char* why = nullptr;
+    glfwGetError(&why);
+    std::cerr << "octoray-view: no window to show this in either" << (why ? std::string(": ") + why : "") << "\n";
     glfwTerminate();
     return 1;
   }

@@ -89,7 +89,9 @@ struct WorkingSetConfig {
 // One frame's figures (the C++ side of octoray-render --json and the viewer's status bar).
 struct WorkingSetStats {
   int64_t leaves = 0;         // data leaves of the cut
-  int64_t bricks = 0;         // distinct bricks they are drawn from (the working set's size)
+  int64_t bricks = 0;         // distinct bricks they are drawn from (the working set's size; the
+                              // root counts only where a seen leaf draws from it: unseen
+                              // leaves drawn from it cost nothing, it is resident for good)
   int64_t proxyLeaves = 0;    // leaves drawn from an ancestor's brick (theirs missing or unseen)
   int64_t fetched = 0;        // own bricks of such leaves uploaded this frame
   int64_t emptyNodes = 0;     // nodes found empty while covering and refining
