@@ -15,7 +15,6 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <iostream>
 #include <random>
 #include <set>
 #include <string>
