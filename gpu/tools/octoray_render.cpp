@@ -920,7 +920,8 @@ int main(int argc, char** argv) {
                "DVR: each sample at a hashed per-pixel fraction of its step (deterministic)");
   app.add_option("--image-adaptive", a.imageAdaptive,
                  "GPU: adaptive sampling in the image plane: off (every pixel), on (error bound "
-                 "0.02) or an error bound (largest channel difference between coarse rays)")
+                 "0.005, within 1 dB of off on CT DVR) or an error bound (largest channel "
+                 "difference between coarse rays)")
       ->capture_default_str();
   app.add_option("--image-adaptive-levels", a.imageAdaptiveLevels,
                  "GPU: pyramid levels above the image (coarsest rays every 2^N pixels)")

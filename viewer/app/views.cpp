@@ -101,9 +101,9 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   gpu::RaycastOptions o = raycastOptions(s);
   if (interactive) {
     // Interactive quality: half resolution, coarser levels, and rays only where the picture
-    // has detail (image-plane adaptive sampling at its default bound).
+    // has detail (image-plane adaptive sampling at its interactive bound).
     o.lodPixels = std::max(2.0, 2.0 * s.lodPixels);
-    o.imageAdaptive = gpu::kImageAdaptiveDefaultThreshold;
+    o.imageAdaptive = gpu::kImageAdaptiveInteractiveThreshold;
   }
   const std::string key = fmt::format("{}|{}", content, interactive);
   if (key != lastKey_) {
