@@ -61,7 +61,7 @@ class Bench:
         if not os.environ.get("DISPLAY"):
             if shutil.which("xvfb-run") is None:
                 sys.exit("accuracy.py: no DISPLAY and no xvfb-run for vtk-peer")
-            self.vtk_prefix = ["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24"]
+            self.vtk_prefix = ["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24 -noreset"]
 
     def run(self, cmd, check=True):
         result = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)

@@ -54,7 +54,7 @@ for run in range(RUNS):
     with open(path("script.json"), "w") as f:
         json.dump({"format": "octoray-view-script", "version": 1, "events": steps}, f)
     env = dict(os.environ, OCTORAY_CONFIG=path("config"), NO_PROXY="127.0.0.1,localhost")
-    p = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1280x800x24", os.path.join(BUILD, "bin/octoray-view"),
+    p = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1280x800x24 -noreset", os.path.join(BUILD, "bin/octoray-view"),
                         "--script", path("script.json"), "--exit", "--size", "1280x800", "--cache-dir", path("cache")],
                        env=env, capture_output=True, text=True)
     link.stop()

@@ -58,7 +58,7 @@ manifest=$out/manifest.tsv
 vtk_prefix=()
 if [[ -z ${DISPLAY:-} ]]; then
   command -v xvfb-run > /dev/null || { echo "$0: no DISPLAY and no xvfb-run" >&2; exit 1; }
-  vtk_prefix=(xvfb-run -a -s "-screen 0 1024x768x24")
+  vtk_prefix=(xvfb-run -a -s "-screen 0 1024x768x24 -noreset")
 fi
 
 has_gpu=0

@@ -41,7 +41,7 @@ s["events"][1]["wait"] = 1
 json.dump(s, open(sys.argv[1], "w"))
 PY
       fi
-      OCTORAY_CONFIG=$out/config xvfb-run -a -s "-screen 0 1280x800x24" "$build/bin/octoray-view" "$store" \
+      OCTORAY_CONFIG=$out/config xvfb-run -a -s "-screen 0 1280x800x24 -noreset" "$build/bin/octoray-view" "$store" \
         --script "$run.script.json" --exit --stats "$run.csv" --cache-dir "$out/cache" 2> "$run.log"
     done
   done

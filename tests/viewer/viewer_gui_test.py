@@ -45,7 +45,10 @@ class Viewer:
         with open(script, "w") as f:
             json.dump({"format": "octoray-view-script", "version": 1, "events": steps + [{"type": "quit"}]}, f)
         env = dict(os.environ, OCTORAY_CONFIG=os.path.join(self.workdir, "config"), **(env_extra or {}))
-        argv = ["xvfb-run", "-a", "-s", f"-screen 0 {SIZE[0]}x{SIZE[1]}x24", os.path.join(BIN, "octoray-view")]
+        # -noreset: Xvfb would otherwise reset when the viewer's last connection closes, and
+        # xvfb-run, removing its auth folder meanwhile, can fail with exit 5 after the viewer
+        # succeeded (seen under load).
+        argv = ["xvfb-run", "-a", "-s", f"-screen 0 {SIZE[0]}x{SIZE[1]}x24 -noreset", os.path.join(BIN, "octoray-view")]
         if data:
             argv.append(data)
         argv += ["--script", script, "--exit", "--size", f"{SIZE[0]}x{SIZE[1]}",

@@ -8,9 +8,11 @@
 #include <imgui_impl_glfw.h>
 #include <imgui_impl_opengl2.h>
 
+#include <chrono>
 #include <cstdio>
 #include <iostream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "app.h"
@@ -21,7 +23,20 @@ namespace octoray::viewer {
 
 int showStartupError(const std::string& message, const std::string& screenshot, bool exitAfter) {
   std::cerr << "octoray-view: " << message << "\n";
-  if (glfwInit() != GLFW_TRUE) return 1;  // no display at all: stderr is all there is
+  // The viewer's own attempt closed the display connection, and an X server that resets when
+  // its last client leaves (Xvfb, a bare xinit session) refuses connections while it does:
+  // try again for up to 5 s before concluding there is no display.
+  bool initialised = glfwInit() == GLFW_TRUE;
+  for (int attempt = 0; !initialised && attempt < 50; ++attempt) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    initialised = glfwInit() == GLFW_TRUE;
+  }
+  if (!initialised) {  // no display at all: stderr is all there is
+    const char* why = nullptr;
+    glfwGetError(&why);
+    std::cerr << "octoray-view: no display to show this on" << (why ? std::string(": ") + why : "") << "\n";
+    return 1;
+  }
   glfwDefaultWindowHints();
   GLFWwindow* window = glfwCreateWindow(760, 260, "octoray-view: cannot start", nullptr, nullptr);
   if (!window) {
