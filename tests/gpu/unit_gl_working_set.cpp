@@ -195,6 +195,23 @@ void expectNoHoleOnRays(const GpuRenderer& renderer, const volume::StoreReader& 
   }
 }
 
+// One frame per camera of `path`, then the last camera again until the working set settles
+// (at most 200 more frames) and, with `untilNothingUploads`, until a frame uploads nothing too
+// (a repack copies the cut one frame after settling). The last frame drawn.
+Frame followPathUntilSettled(GpuRenderer& renderer, const std::vector<Camera>& path,
+                             const transfer::TransferFunction& tf, const RaycastOptions& options,
+                             bool untilNothingUploads = false) {
+  for (const Camera& c : path) renderer.renderFrame(c, tf, options);
+  Frame last;
+  int frames = 0;
+  do {
+    last = renderer.renderFrame(path.back(), tf, options);
+    if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  } while (!(renderer.workingSet().settled() && (!untilNothingUploads || last.stats.workingSet.uploaded == 0)) &&
+           ++frames < 200);
+  return last;
+}
+
 double coverage(const Image& image) {
   double sum = 0;
   for (std::size_t i = 3; i < image.rgba.size(); i += 4) sum += image.rgba[i];
@@ -331,13 +348,7 @@ TEST_F(WorkingSetTest, PictureConvergesToTheStaticOneWhenTheCameraStops) {
     config.visibility = visibility;
     config.visibilityThreshold = 1;
     GpuRenderer renderer(store, config);
-    for (const Camera& c : path) renderer.renderFrame(c, tf, options);
-    Frame last;
-    int frames = 0;
-    do {
-      last = renderer.renderFrame(path.back(), tf, options);
-      if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    } while (!renderer.workingSet().settled() && ++frames < 200);
+    const Frame last = followPathUntilSettled(renderer, path, tf, options);
     ASSERT_TRUE(renderer.workingSet().settled()) << visibilityName(visibility);
     const ImageMetrics m = compare(still.image, last.image);
     if (visibility == Visibility::None) {
@@ -405,13 +416,7 @@ TEST_F(WorkingSetTest, ConvergedPictureMatchesTheCpuReferenceOverItsCut) {
   config.visibility = Visibility::Rays;
   config.uploadBytesPerFrame = 8 * 20 * 20 * 20 * 2;
   GpuRenderer renderer(store, config);
-  for (const Camera& c : path) renderer.renderFrame(c, tf, options);
-  Frame last;
-  int frames = 0;
-  do {
-    last = renderer.renderFrame(path.back(), tf, options);
-    if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  } while (!renderer.workingSet().settled() && ++frames < 200);
+  const Frame last = followPathUntilSettled(renderer, path, tf, options);
   ASSERT_TRUE(renderer.workingSet().settled());
   ASSERT_GT(coverage(last.image), 0.1);
 
@@ -459,13 +464,7 @@ TEST_F(WorkingSetTest, RepackedConvergedViewIsTheSamePictureWhateverTheHistory) 
     fresh = renderer.render(path.back(), tf, options);
   }
   GpuRenderer renderer(store, config);
-  for (const Camera& c : path) renderer.renderFrame(c, tf, options);
-  Frame last;
-  int frames = 0;
-  do {
-    last = renderer.renderFrame(path.back(), tf, options);
-    if (!renderer.workingSet().settled()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  } while (!(renderer.workingSet().settled() && last.stats.workingSet.uploaded == 0) && ++frames < 200);
+  const Frame last = followPathUntilSettled(renderer, path, tf, options, true);
   ASSERT_TRUE(renderer.workingSet().settled());
   ASSERT_GT(coverage(last.image), 0.1);
   EXPECT_EQ(last.stats.workingSet.leaves, fresh.stats.workingSet.leaves);
