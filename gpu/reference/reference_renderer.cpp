@@ -466,10 +466,11 @@ RenderResult ReferenceRenderer::render(const Camera& camera, const transfer::Tra
                                        const RenderOptions& options) const {
   camera.validate();
   checkOptions(options, tf);
-  if (volume_.isCut() && options.mode == RenderMode::Mip) {
+  if (volume_.hasCoarseLeaves() && options.mode == RenderMode::Mip) {
     // The exact maximum splits chords at the leaf level's voxel-centre planes; a coarse leaf's
     // interpolant has other planes.
-    throw Error("", "the reference renders DVR and isosurfaces over an LOD cut, not MIP");
+    throw Error("", "the reference renders DVR and isosurfaces over an LOD cut with coarse "
+                    "leaves, not MIP");
   }
   Frame f;
   f.volume = &volume_;

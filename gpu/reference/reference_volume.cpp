@@ -43,6 +43,9 @@ class CutSamples {
     return leaf ? levelSample(*leaf, {i, j, k}) : std::numeric_limits<double>::quiet_NaN();
   }
   Vec3 gradient(const Vec3& p) const;
+  bool hasCoarseLeaves() const {
+    return std::ranges::any_of(leaves_, [this](const Leaf& l) { return l.dataLevel != layout_.leafLevel(); });
+  }
 
  private:
   struct Leaf {
@@ -220,6 +223,8 @@ ReferenceVolume ReferenceVolume::fromCut(const volume::StoreReader& store,
   return ReferenceVolume(std::make_shared<const CutSamples>(store, leaves),
                          layout.levelDims(layout.leafLevel()), store.patientFromIndex());
 }
+
+bool ReferenceVolume::hasCoarseLeaves() const { return cut_ && cut_->hasCoarseLeaves(); }
 
 Vec3 ReferenceVolume::gradientIndex(const Vec3& p) const {
   if (cut_) return cut_->gradient(p);

@@ -171,6 +171,34 @@ std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat
   return out;
 }
 
+std::vector<volume::NodeKey> nodesInFrustum(const volume::StoreReader& store, const Camera& camera,
+                                            int level) {
+  const volume::OctreeLayout& layout = store.layout();
+  if (level < 0 || level > layout.leafLevel()) {
+    throw Error(store.path(), fmt::format("level {} is not a level of the store (0..{})", level,
+                                          layout.leafLevel()));
+  }
+  const Projector projector(store, camera);
+  std::vector<volume::NodeKey> nodes;
+  std::vector<int64_t> stack{0};
+  while (!stack.empty()) {
+    const int64_t id = stack.back();
+    stack.pop_back();
+    if (!projector.visible(id)) continue;
+    const volume::NodeKey key = layout.nodeKey(id);
+    if (key.level == level) {
+      nodes.push_back(key);
+      continue;
+    }
+    const std::vector<int64_t> children = layout.children(id);
+    stack.insert(stack.end(), children.rbegin(), children.rend());
+  }
+  std::sort(nodes.begin(), nodes.end(), [&layout](const volume::NodeKey& a, const volume::NodeKey& b) {
+    return layout.nodeId(a) < layout.nodeId(b);
+  });
+  return nodes;
+}
+
 Visibility parseVisibility(const std::string& name) {
   if (name == "none") return Visibility::None;
   if (name == "occlusion") return Visibility::Occlusion;

@@ -12,7 +12,7 @@
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
 //      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]
 //      [--cut-reference REF.png]]  (the CPU reference over the GPU picture's LOD cut)
-//     | --reference [--converge [--converge-max-change D] [--converge-psnr DB]]
+//     | --reference [--converge [--converge-max-change D] [--converge-psnr DB]] [--frustum-cut]
 //     [--preintegration on|off | --jitter]  (DVR, both renderers)
 // --path renders a camera path one frame each, with the working set carried across frames
 // and bricks streamed in the background (the interaction benchmark; camera_path.h).
@@ -52,35 +52,9 @@
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_format.h"
 #include "octoray/volume/store_reader.h"
+#include "octoray_render/render_tool.h"
 
-namespace {
-
-using namespace octoray;
-using gpu::reference::RenderMode;
-using gpu::reference::RenderOptions;
-
-struct Arguments {
-  std::string path, output, exr, mode = "dvr", preset, tfPath, tfName, size = "512x512";
-  std::string camera, saveCamera, projection = "perspective", shading = "auto";
-  std::optional<double> iso;
-  double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
-  bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
-  bool gradientPool = false, noCellSkipping = false, jitter = false, converge = false;
-  std::string preintegration = "off", imageAdaptive = "off";
-  int imageAdaptiveLevels = 2;
-  double convergeMaxChange = 1.0 / 1024, convergePsnr = 70;
-  int convergeHalvings = 6;
-  std::string mip = "exact";
-  double lodPixels = 1.0, orbitDegrees = 0;
-  int frames = 1, threads = 0;
-  std::size_t poolMib = 1024, cacheMib = 2048, uploadMibPerFrame = 64;
-  std::string visibility = "rays", cameraPath, statsOut;
-  int visibilityThreshold = 4;
-  std::string boundary, silhouette, clip;
-  std::string cutReference;  // PNG: the CPU reference over the GPU picture's LOD cut
-  // Set by resolveDefaults() when neither --preset nor --tf was given.
-  std::optional<transfer::TransferFunction> defaultTf;
-};
+namespace octoray::render_tool {
 
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
@@ -104,15 +78,6 @@ bool isStore(const std::string& path) {
   in.read(magic, sizeof(magic));
   return in.gcount() == sizeof(magic) &&
          std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
-}
-
-gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
-  if (isStore(path)) {
-    const volume::StoreReader store(path);
-    return gpu::reference::ReferenceVolume::fromStore(store);
-  }
-  const auto source = openVolume(path);
-  return gpu::reference::ReferenceVolume::fromSource(*source);
 }
 
 // The PNG and the EXR together: both or neither (gpu::writeImageOutputs).
@@ -409,216 +374,6 @@ double percentile(std::vector<double> values, double p) {
   return values[lo] + (rank - static_cast<double>(lo)) * (values[hi] - values[lo]);
 }
 
-int runReference(const Arguments& a) {
-  const transfer::TransferFunction tf = loadTransferFunction(a);
-  const RenderOptions options = renderOptions(a);
-
-  auto start = std::chrono::steady_clock::now();
-  const auto volume = loadVolume(a.path);
-  const double loadMs = millisecondsSince(start);
-
-  const gpu::Camera camera = makeCamera(a, {volume.dims(), volume.patientFromIndex()});
-  if (!a.saveCamera.empty()) gpu::saveCamera(camera, a.saveCamera);
-
-  start = std::chrono::steady_clock::now();
-  const gpu::reference::ReferenceRenderer renderer(volume);
-  gpu::reference::ReferenceRenderer::ConvergedResult converged;
-  if (a.converge) {
-    gpu::reference::ReferenceRenderer::ConvergenceRule rule;
-    rule.maxChange = a.convergeMaxChange;
-    rule.minPsnrDb = a.convergePsnr;
-    rule.maxHalvings = a.convergeHalvings;
-    converged = renderer.renderConverged(camera, tf, options, rule);
-  } else {
-    converged.result = renderer.render(camera, tf, options);
-  }
-  const auto& result = converged.result;
-  const double renderMs = millisecondsSince(start);
-
-  writeOutputs(result.image, a);
-
-  if (a.json) {
-    const nlohmann::json report = {
-        {"renderer", "reference"},
-        {"mode", a.mode},
-        {"transferFunction", tf.name},
-        {"dims", volume.dims()},
-        {"width", camera.width},
-        {"height", camera.height},
-        {"timingMs", {{"load", loadMs}, {"render", renderMs}}},
-        {"samples", result.stats.samples},
-        {"raysHit", result.stats.raysHit},
-        {"stepMm", result.stats.stepMm},
-        {"preintegration", options.preintegration},
-        {"jitter", options.jitter},
-        {"camera", gpu::cameraToJson(camera)},
-        {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
-    nlohmann::json report2 = report;
-    if (a.converge) {
-      report2["convergence"] = {{"converged", converged.converged},
-                                {"stepsMm", converged.stepsMm},
-                                {"changeMax", converged.changeMax},
-                                {"changePsnrDb", converged.changePsnrDb},
-                                {"estimatedMaxError", converged.estimatedMaxError}};
-    }
-    std::cout << report2.dump(2) << '\n';
-  } else if (a.converge) {
-    fmt::print("{}: {}x{} {} truth in {:.0f} ms, {} at step {:g} mm (last change {:.2g}, {:.1f} dB)\n",
-               a.output, camera.width, camera.height, a.mode, renderMs,
-               converged.converged ? "converged" : "NOT converged", result.stats.stepMm,
-               converged.changeMax.empty() ? 0.0 : converged.changeMax.back(),
-               converged.changePsnrDb.empty() ? 0.0 : converged.changePsnrDb.back());
-  } else {
-    fmt::print("{}: {}x{} {} in {:.0f} ms ({} samples), volume loaded in {:.0f} ms\n", a.output,
-               camera.width, camera.height, a.mode, renderMs, result.stats.samples, loadMs);
-  }
-  // The picture is written either way (it is the finest step tried); the status says
-  // whether it is a truth.
-  return a.converge && !converged.converged ? 3 : 0;
-}
-
-// --cut-reference: the CPU reference over the LOD cut the GPU picture was drawn from (the same
-// camera, TF, options and step; ReferenceVolume::fromCut reads only the cut's bricks), written
-// as a PNG and compared with the GPU picture. What checks a converged picture of a volume too
-// large for the full-resolution reference.
-nlohmann::json cutReference(const Arguments& a, const volume::StoreReader& store,
-                            const gpu::GpuRenderer& renderer, const gpu::Camera& camera,
-                            const transfer::TransferFunction& tf, const gpu::Image& gpuImage) {
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<gpu::reference::CutLeafRef> leaves;
-  for (const gpu::CutLeaf& leaf : renderer.workingSet().cut()) leaves.push_back({leaf.key, leaf.dataLevelsUp});
-  const auto volume = gpu::reference::ReferenceVolume::fromCut(store, leaves);
-  const double loadMs = millisecondsSince(start);
-  RenderOptions options = renderOptions(a);
-  options.stepMm = a.stepMm > 0 ? a.stepMm : renderer.defaultStepMm();
-  const auto result = gpu::reference::ReferenceRenderer(volume).render(camera, tf, options);
-  const double renderMs = millisecondsSince(start) - loadMs;
-  gpu::writeImageOutputs(result.image, {a.cutReference, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, ""});
-  const gpu::ImageMetrics m = gpu::compare(result.image, gpuImage);
-  int64_t coarsest = 0;
-  for (const gpu::CutLeaf& leaf : renderer.workingSet().cut()) {
-    coarsest = std::max<int64_t>(coarsest, store.layout().leafLevel() - (leaf.key.level - leaf.dataLevelsUp));
-  }
-  const nlohmann::json report = {
-      {"output", a.cutReference},
-      {"leaves", leaves.size()},
-      {"coarsestLevelsAboveLeaf", coarsest},
-      {"stepMm", options.stepMm},
-      {"psnrDb", std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json("inf")},
-      {"ssim", m.ssim},
-      {"maxAbsError", m.maxAbsError},
-      {"timingMs", {{"load", loadMs}, {"render", renderMs}}}};
-  if (!a.json) {
-    fmt::print("{}: CPU reference over the same cut ({} leaves, up to {} levels above the leaf "
-               "level), {:.1f} dB, SSIM {:.4f}, in {:.0f} ms\n",
-               a.cutReference, leaves.size(), coarsest, m.psnrDb, m.ssim, loadMs + renderMs);
-  }
-  return report;
-}
-
-// --path: one renderFrame() per camera, the working set carried across frames and bricks
-// streamed in the background; the per-frame records to --stats, the last frame to -o.
-int runPath(const Arguments& a, const volume::StoreReader& store, gpu::GpuRenderer& renderer,
-            const transfer::TransferFunction& tf,
-            gpu::RaycastOptions options, const gpu::VolumeDomain& domain,
-            const gpu::GlContext& context, double setupMs) {
-  gpu::OrbitParameters start = orbitParameters(a);
-  const auto size = parseSize(a.size.empty() ? "512x512" : a.size);
-  start.width = size[0];
-  start.height = size[1];
-  std::vector<gpu::Camera> cameras = gpu::cameraPath(a.cameraPath, domain, start);
-  if (!a.size.empty() && a.cameraPath.rfind("orbit:", 0) != 0) {
-    for (gpu::Camera& c : cameras) {
-      c.width = size[0];
-      c.height = size[1];
-    }
-  }
-  if (!a.saveCamera.empty()) gpu::saveCamera(cameras.back(), a.saveCamera);
-  // The camera stops at the first frame from which every camera is the same.
-  std::size_t stop = cameras.size() - 1;
-  while (stop > 0 && gpu::cameraToJson(cameras[stop - 1]) == gpu::cameraToJson(cameras.back())) --stop;
-
-  options.stats = false;
-  nlohmann::json frames = nlohmann::json::array();
-  std::vector<double> framesMs;
-  std::vector<std::string> errors;
-  gpu::Frame last;
-  std::optional<double> convergedMs;
-  std::optional<std::size_t> convergedFrame;
-  double sinceStopMs = 0;
-  uint64_t bytesRead = 0, maxCacheBytes = 0;
-  for (std::size_t f = 0; f < cameras.size(); ++f) {
-    const auto t0 = std::chrono::steady_clock::now();
-    last = renderer.renderFrame(cameras[f], tf, options);
-    const double ms = millisecondsSince(t0);
-    framesMs.push_back(ms);
-    frames.push_back(frameRecord(last, ms));
-    bytesRead += last.stats.bytesRead;
-    maxCacheBytes = std::max(maxCacheBytes, last.stats.cacheBytes);
-    for (const std::string& e : last.stats.errors) {
-      fmt::print(stderr, "octoray-render: {}\n", e);
-      errors.push_back(e);
-    }
-    if (f >= stop) {
-      sinceStopMs += ms;
-      if (!convergedMs && renderer.workingSet().settled()) {
-        convergedMs = sinceStopMs;
-        convergedFrame = f;
-      }
-    }
-  }
-  writeOutputs(last.image, a);
-  if (!a.statsOut.empty()) writeStats(frames, a.statsOut);
-
-  const auto [rss, peak] = residentMib();  // the path's, before the check below
-  // The last frame's cut is the one the working set holds until the next update.
-  nlohmann::json cutCheck;
-  if (!a.cutReference.empty()) cutCheck = cutReference(a, store, renderer, cameras.back(), tf, last.image);
-  const double medianMs = percentile(framesMs, 0.5), p95Ms = percentile(framesMs, 0.95);
-  if (a.json) {
-    const nlohmann::json report = {
-        {"renderer", "gpu"},
-        {"glRenderer", context.renderer()},
-        {"mode", a.mode},
-        {"transferFunction", tf.name},
-        {"dims", domain.dims},
-        {"path", a.cameraPath},
-        {"visibility", a.visibility},
-        {"visibilityThreshold", a.visibilityThreshold},
-        {"uploadMibPerFrame", a.uploadMibPerFrame},
-        {"poolMib", a.poolMib},
-        {"cacheMib", a.cacheMib},
-        {"lodPixels", a.lodPixels},
-        {"framesRendered", cameras.size()},
-        {"cameraStopsAtFrame", stop},
-        {"setupMs", setupMs},
-        {"firstImageMs", setupMs + framesMs.front()},
-        {"medianMs", medianMs},
-        {"p95Ms", p95Ms},
-        {"convergedAfterStopMs", convergedMs ? nlohmann::json(*convergedMs) : nlohmann::json(nullptr)},
-        {"convergedAtFrame", convergedFrame ? nlohmann::json(*convergedFrame) : nlohmann::json(nullptr)},
-        {"bytesRead", bytesRead},
-        {"maxCacheBytes", maxCacheBytes},
-        {"peakRssMib", peak},
-        {"finalWorkingSetBricks", last.stats.workingSetBricks},
-        {"converged", convergedMs.has_value()},
-        {"cutReference", cutCheck},
-        {"errors", errors},
-        {"frames", frames},
-        {"outputs", a.exr.empty() ? nlohmann::json{a.output} : nlohmann::json{a.output, a.exr}}};
-    std::cout << report.dump(2) << '\n';
-  } else {
-    fmt::print("{}: {} frames of {} ({}), median {:.0f} ms, p95 {:.0f} ms, first image {:.0f} ms, "
-               "converged {} after the camera stopped, {:.1f} MiB read, peak RSS {:.0f} MiB, "
-               "{} bricks in the final working set\n",
-               a.output, cameras.size(), a.cameraPath, a.visibility, medianMs, p95Ms,
-               setupMs + framesMs.front(),
-               convergedMs ? fmt::format("{:.0f} ms", *convergedMs) : std::string("not yet"),
-               static_cast<double>(bytesRead) / (1 << 20), peak, last.stats.workingSetBricks);
-  }
-  return errors.empty() ? 0 : 1;
-}
-
 int runGpu(const Arguments& a) {
   const transfer::TransferFunction tf = loadTransferFunction(a);
   // The options both renderers share, parsed once (renderOptions), then the GPU's own.
@@ -817,7 +572,9 @@ int run(Arguments a) {
   return a.reference ? runReference(a) : runGpu(a);
 }
 
-}  // namespace
+}  // namespace octoray::render_tool
+
+using octoray::render_tool::Arguments;
 
 int main(int argc, char** argv) {
   CLI::App app{
@@ -946,6 +703,9 @@ int main(int argc, char** argv) {
                  "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")
       ->check(CLI::NonNegativeNumber);
+  app.add_flag("--frustum-cut", a.frustumCut,
+               "reference, store: read only the leaf bricks in the camera's view (the truth of a "
+               "zoomed view of a store too large for memory; the same picture)");
   app.add_option("--cut-reference", a.cutReference,
                  "GPU: also render the CPU reference over the LOD cut of the GPU picture (the last "
                  "frame of --path) to this PNG and report their agreement (DVR and iso)");
@@ -961,7 +721,7 @@ int main(int argc, char** argv) {
     }
     if (!a.reference) {
       for (const char* referenceOnly : {"--converge", "--converge-max-change", "--converge-psnr",
-                                        "--converge-halvings"}) {
+                                        "--converge-halvings", "--frustum-cut"}) {
         if (app.count(referenceOnly) > 0) {
           throw CLI::ValidationError(referenceOnly, "applies to --reference");
         }
@@ -995,5 +755,5 @@ int main(int argc, char** argv) {
     fmt::print(stderr, "octoray-render: {}\nRun with --help for more information.\n", e.what());
     return 2;
   }
-  return cli::runTool("octoray-render", [&] { return run(a); });
+  return octoray::cli::runTool("octoray-render", [&] { return run(a); });
 }

@@ -5,14 +5,18 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
 
 #include "file_damage.h"
 #include "gl_test_support.h"
+#include "octoray/gpu/camera.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"
+#include "octoray/gpu/working_set.h"
 #include "octoray/volume/phantom.h"
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
@@ -230,6 +234,94 @@ TEST_F(GpuRenderTool, CutReferenceChecksTheConvergedPictureOfAPath) {
   EXPECT_EQ(mip.exitCode, 2) << mip.err;
   EXPECT_NE(mip.err.find("--cut-reference"), std::string::npos) << mip.err;
   EXPECT_FALSE(std::filesystem::exists(mipOut));
+}
+
+// The leaf-level nodes in a zoomed view (gpu::nodesInFrustum) hold every point a ray of the
+// camera reaches, and not the whole store: rays through pixel centres, corners included,
+// marched through the volume, meet no node outside the list.
+TEST_F(GpuRenderTool, NodesInFrustumHoldEveryPointOfEveryRay) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader reader(store);
+  const volume::OctreeLayout& layout = reader.layout();
+  const int leafLevel = layout.leafLevel();
+  const volume::Index3& dims = layout.levelDims(leafLevel);
+  for (const Projection projection : {Projection::Perspective, Projection::Orthographic}) {
+    OrbitParameters orbit;
+    orbit.azimuthDegrees = 30;
+    orbit.elevationDegrees = 15;
+    orbit.zoom = 3;
+    orbit.projection = projection;
+    orbit.width = orbit.height = 33;
+    const Camera camera = orbitCamera({dims, reader.patientFromIndex()}, orbit);
+    const std::vector<volume::NodeKey> nodes = nodesInFrustum(reader, camera, leafLevel);
+    std::set<int64_t> inView;
+    for (const volume::NodeKey& key : nodes) {
+      EXPECT_EQ(key.level, leafLevel);
+      inView.insert(layout.nodeId(key));
+    }
+    const volume::Index3& n = layout.levelBricks(leafLevel);
+    EXPECT_LT(inView.size(), static_cast<std::size_t>(n[0] * n[1] * n[2])) << "zoom 3 sees part of the store";
+    const Mat4 indexFromPatient = reader.patientFromIndex().inverseAffine();
+    int64_t inside = 0;
+    for (int y = 0; y < camera.height; ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const Ray ray = camera.ray(x, y);
+        for (double t = 0; t < 600; t += 0.25) {
+          const Vec3 p = indexFromPatient.transformPoint(ray.origin + t * ray.direction);
+          const double q[3] = {p.x, p.y, p.z};
+          volume::NodeKey key{leafLevel, {}};
+          bool outside = false;
+          for (int a = 0; a < 3; ++a) {
+            outside = outside || q[a] < -0.5 || q[a] > static_cast<double>(dims[a]) - 0.5;
+            key.brick[a] = std::clamp<int64_t>(static_cast<int64_t>(std::floor(q[a] + 0.5)), 0, dims[a] - 1) /
+                           layout.brickSize();
+          }
+          if (outside) continue;
+          ++inside;
+          ASSERT_TRUE(inView.count(layout.nodeId(key))) << "pixel " << x << "," << y << " t " << t
+                                                        << " reaches brick " << key.brick[0] << " "
+                                                        << key.brick[1] << " " << key.brick[2];
+        }
+      }
+    }
+    EXPECT_GT(inside, 1000) << "the rays cross the volume";
+  }
+}
+
+// --reference --frustum-cut reads only the leaf bricks in view and draws the same picture as
+// the full volume, in every mode; a view that would not fit in memory is refused by name.
+TEST_F(GpuRenderTool, FrustumCutReferenceIsTheFullVolumesPicture) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  for (const std::vector<std::string>& mode : {std::vector<std::string>{"--mode", "dvr", "--preset", "bone"},
+                                               {"--mode", "iso", "--iso", "300"},
+                                               {"--mode", "mip"}}) {
+    std::vector<std::string> common{render, store, "--reference", "--size", "48x40", "--zoom", "4",
+                                    "--azimuth", "30", "--elevation", "15", "--json"};
+    common.insert(common.end(), mode.begin(), mode.end());
+    std::vector<std::string> full = common, cut = common;
+    full.insert(full.end(), {"-o", (dir / "full.png").string(), "--exr", (dir / "full.exr").string()});
+    cut.insert(cut.end(), {"-o", (dir / "cut.png").string(), "--exr", (dir / "cut.exr").string(), "--frustum-cut"});
+    const ProcessResult a = runProcess(full), b = runProcess(cut);
+    ASSERT_EQ(a.exitCode, 0) << a.err;
+    ASSERT_EQ(b.exitCode, 0) << b.err;
+    const auto report = nlohmann::json::parse(b.out)["frustumCut"];
+    EXPECT_GT(report["leaves"].get<int>(), 0);
+    EXPECT_LT(report["leaves"].get<int>(), report["leafNodes"].get<int>()) << mode[1];
+    const Image fullImage = readImage((dir / "full.exr").string()), cutImage = readImage((dir / "cut.exr").string());
+    const ImageMetrics m = compare(fullImage, cutImage);
+    EXPECT_EQ(m.maxAbsError, 0.0) << mode[1] << ": " << m.psnrDb << " dB";
+    EXPECT_GT(compare(fullImage, Image(fullImage.width, fullImage.height)).maxAbsError, 0.1)
+        << mode[1] << ": the picture shows the volume";
+  }
+  // Only stores have bricks to choose from.
+  const ProcessResult notStore = runProcess({render, nrrd, "--reference", "--frustum-cut", "-o",
+                                             (dir / "nrrd.png").string()});
+  EXPECT_EQ(notStore.exitCode, 1);
+  EXPECT_NE(notStore.err.find("--frustum-cut needs an octree store"), std::string::npos) << notStore.err;
+  EXPECT_NE(notStore.err.find(nrrd), std::string::npos) << notStore.err;
+  const ProcessResult gpuFlag = runProcess({render, store, "--frustum-cut", "-o", (dir / "g.png").string()});
+  EXPECT_EQ(gpuFlag.exitCode, 2) << gpuFlag.err;
 }
 
 // --path: one frame per camera with the working set carried across frames, per-frame figures

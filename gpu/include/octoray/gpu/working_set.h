@@ -74,6 +74,15 @@ const char* visibilityName(Visibility v);
 std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
                                    const volume::NodeKey& key);
 
+// Every node of `level` whose box meets the camera's view frustum, in node order, found from
+// the root down with the test the working set culls with (a node is left out only when its box
+// lies wholly outside one plane of the frustum, so every point a ray of the camera reaches is
+// in one of them). The leaf level's nodes in view are the full-resolution volume as far as the
+// picture can tell: ReferenceVolume::fromCut over them is the truth of a zoomed view of a store
+// too large for fromStore.
+std::vector<volume::NodeKey> nodesInFrustum(const volume::StoreReader& store, const Camera& camera,
+                                            int level);
+
 struct WorkingSetOptions {
   RaycastMode mode = RaycastMode::Dvr;
   double lodPixels = 1.0;  // target projected voxel size; 0: finest level everywhere

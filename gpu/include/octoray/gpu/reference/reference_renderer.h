@@ -64,7 +64,8 @@
 // clamp plane; on each piece the interpolant is a cubic in t, maximised at the ends and at
 // its critical points. The pixel is the TF's colour and opacity at the maximum (VTK's MIP),
 // premultiplied; depth is the distance to the (first) maximum; `value` holds the maximum.
-// Full-resolution volumes only: over an LOD cut render() refuses MIP.
+// Full-resolution samples only: render() refuses MIP over an LOD cut with coarse leaves (a
+// leaf-level cut, as --frustum-cut reads, is the full volume where it has leaves).
 //
 // Rows run in parallel (TBB); each pixel depends only on its ray, so output is deterministic.
 

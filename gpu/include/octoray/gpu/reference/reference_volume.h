@@ -69,6 +69,9 @@ class ReferenceVolume {
     return values_[static_cast<std::size_t>(i + dims_[0] * (j + dims_[1] * k))];
   }
   bool isCut() const { return cut_ != nullptr; }
+  // True for a cut with a leaf drawn from a level above the leaf level (its interpolant has
+  // other cell planes than the full volume's); false for a leaf-level cut and a full volume.
+  bool hasCoarseLeaves() const;
   const std::vector<float>& values() const { return values_; }
   // Trilinear interpolant at index-space point p (clamped as above), in double precision.
   double sample(double i, double j, double k) const;
