@@ -10,6 +10,7 @@
 #include <random>
 
 #include "memory_volume.h"
+#include "render_test_support.h"
 #include "octoray/core/error.h"
 #include "octoray/gpu/reference/reference_volume.h"
 #include "octoray/volume/store_builder.h"
@@ -166,6 +167,30 @@ TEST_F(CutVolume, PointsNoLeafHoldsAreEmptyAndBadCutsAreRefused) {
   refused({leaf(1, 2, 0, 0)}, "not a node of the store");
   refused({leaf(3, 0, 0, 0)}, "not a node of the store");
   refused({leaf(1, 0, 0, 0, 2)}, "not a node of the store");
+}
+
+// The exact MIP splits chords at the leaf level's voxel-centre planes: right over a cut of
+// leaf-level bricks (the full volume where it has leaves), refused over coarse leaves.
+TEST_F(CutVolume, MipOverLeafLevelCutsOnly) {
+  gpu::reference::RenderOptions mip;
+  mip.mode = gpu::reference::RenderMode::Mip;
+  const auto tf = constantTf(1);
+  // Along x through leaf-level bricks (x, 0, 1), in patient space (the store's grid is sheared).
+  const Mat4& m = store_->patientFromIndex();
+  const Vec3 origin = m.transformPoint({-20, 10.3, 20.7}), direction = m.transformVector({1, 0.02, 0.03});
+  std::vector<gpu::reference::CutLeafRef> leafLevel;
+  for (int64_t x = 0; x < 4; ++x) leafLevel.push_back(leaf(2, x, 0, 1));
+  const ReferenceVolume fine = ReferenceVolume::fromCut(*store_, leafLevel);
+  EXPECT_FALSE(fine.hasCoarseLeaves());
+  const ReferenceVolume full = ReferenceVolume::fromStore(*store_);
+  EXPECT_FALSE(full.hasCoarseLeaves());
+  const double fullMax = renderRay(full, tf, mip, origin, direction).value;
+  EXPECT_GT(fullMax, f(60, 10, 20)) << "the ray crosses the volume";
+  EXPECT_EQ(renderRay(fine, tf, mip, origin, direction).value, fullMax);
+  const std::vector<gpu::reference::CutLeafRef> coarse{leaf(1, 0, 0, 0)};
+  const ReferenceVolume cut = ReferenceVolume::fromCut(*store_, coarse);
+  EXPECT_TRUE(cut.hasCoarseLeaves());
+  EXPECT_THROW(renderRay(cut, tf, mip, origin, direction), Error);
 }
 
 }  // namespace
