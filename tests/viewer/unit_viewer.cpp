@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <thread>
 #include <numbers>
 
@@ -328,12 +329,26 @@ TEST(ViewerScript, ParsesStepsAndNamesBadOnes) {
   for (const char* bad : {R"([{"type": "teleport"}])", R"([{"type": "drag", "from": [1, 2]}])",
                           R"([{"type": "click", "at": {"view": "side", "pixel": [1, 2]}}])",
                           R"([{"type": "click", "at": {"view": "3d", "patient": [1, 2, 3]}}])",
-                          R"([{"type": "key"}])", R"([{"type": "move", "at": [1, 2], "colour": 1}])"}) {
+                          R"([{"type": "key"}])", R"([{"type": "move", "at": [1, 2], "colour": 1}])",
+                          R"([{"type": "screenshot", "path": "a.png", "patientInfo": 1}])"}) {
     try {
       parseScript(json::parse(bad), "s.json");
       ADD_FAILURE() << "accepted " << bad;
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find("s.json: script step 0"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// Fields of the wrong type are named, never a JSON type error (fuzz/regressions/fuzz_json_documents).
+TEST(ViewerScript, AFormatOfTheWrongTypeIsRefusedByName) {
+  for (const char* bad : {R"({"format": ["octoray-view-script"], "events": []})", R"({"format": 1, "events": []})"}) {
+    try {
+      parseScript(json::parse(bad), "s.json");
+      ADD_FAILURE() << "accepted " << bad;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("s.json: expected {\"format\": \"octoray-view-script\""), std::string::npos)
+          << e.what();
     }
   }
 }
@@ -348,6 +363,33 @@ TEST(ViewerPresets, ShippedTableHasKeysOneToNineWithSources) {
   EXPECT_EQ(presets[0].name, "brain");
   EXPECT_EQ(presets[0].window, 80);
   EXPECT_EQ(presets[0].level, 40);
+}
+
+// A preset table with a field of the wrong type is refused by name (a "source" of 6 escaped
+// as a JSON type error before: fuzz/regressions/fuzz_json_documents).
+TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
+  const auto dir = test::freshTempDir("wl_presets");
+  const auto load = [&](const std::string& preset, const std::string& format = "\"octoray-window-level-presets\"") {
+    const auto path = dir / "presets.json";
+    std::ofstream(path) << "{\"format\": " << format << ", \"presets\": [" << preset << "]}";
+    return loadWindowLevelPresets(path);
+  };
+  EXPECT_EQ(load(R"({"name": "a", "window": 80, "level": 40, "key": 3, "source": "s"})").front().key, 3);
+  EXPECT_EQ(load(R"({"name": "a", "window": 80, "level": 40})").front().source, "");
+  const auto refused = [&](const std::string& preset, const std::string& what, const std::string& format = "\"octoray-window-level-presets\"") {
+    try {
+      load(preset, format);
+      ADD_FAILURE() << "accepted " << preset;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("presets.json"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  refused(R"({"name": "a", "window": 80, "level": 40, "source": 6})", "presets[0]: source must be a string");
+  refused(R"({"name": "a", "window": 80, "level": 40, "key": "1"})", "key must be an integer");
+  refused(R"({"name": "a", "window": 80, "level": 40, "key": 1.5})", "key must be an integer");
+  refused(R"({"name": "a", "window": 80, "level": 40, "key": 12})", "key must be 1-9");
+  refused(R"({"name": "a", "window": 80, "level": 40})", "expected {", "7");
 }
 
 TEST(ViewerDataset, StoreCacheKeyDependsOnContentNotPath) {

@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <fstream>
 #include <set>
@@ -22,7 +23,7 @@ std::vector<WindowLevelPreset> loadWindowLevelPresets(const std::filesystem::pat
   } catch (const nlohmann::json::exception& e) {
     throw Error(file, std::string("not JSON: ") + e.what());
   }
-  if (!j.is_object() || j.value("format", "") != "octoray-window-level-presets" ||
+  if (!j.is_object() || !j.contains("format") || j["format"] != "octoray-window-level-presets" ||
       !j.contains("presets") || !j["presets"].is_array()) {
     throw Error(file, "expected {\"format\": \"octoray-window-level-presets\", \"presets\": [...]}");
   }
@@ -38,16 +39,20 @@ std::vector<WindowLevelPreset> loadWindowLevelPresets(const std::filesystem::pat
         !p["window"].is_number() || !p.contains("level") || !p["level"].is_number()) {
       throw bad("expected name, window and level");
     }
+    // Optional fields: absent, or of their type (never converted: a key of 1.5 is no key).
+    if (p.contains("key") && !p["key"].is_number_integer()) throw bad("key must be an integer 0-9");
+    if (p.contains("source") && !p["source"].is_string()) throw bad("source must be a string");
     WindowLevelPreset w;
     w.name = p["name"].get<std::string>();
     w.window = p["window"].get<double>();
     w.level = p["level"].get<double>();
-    w.key = p.value("key", 0);
-    w.source = p.value("source", "");
+    const int64_t key = p.contains("key") ? p["key"].get<int64_t>() : 0;
+    if (key < 0 || key > 9) throw bad("key must be 1-9 (or 0 for none)");
+    w.key = static_cast<int>(key);
+    w.source = p.contains("source") ? p["source"].get<std::string>() : std::string();
     if (!std::isfinite(w.window) || w.window < 1 || !std::isfinite(w.level)) {
       throw bad("window must be >= 1 HU and level finite");
     }
-    if (w.key < 0 || w.key > 9) throw bad("key must be 1-9 (or 0 for none)");
     if (w.key != 0 && !keys.insert(w.key).second) throw bad(fmt::format("key {} used twice", w.key));
     if (!names.insert(w.name).second) throw bad(fmt::format("name \"{}\" used twice", w.name));
     out.push_back(std::move(w));

@@ -85,7 +85,7 @@ int parseMods(const json& v, const StepReader& r) {
 std::vector<ScriptStep> parseScript(const json& root, const std::string& path) {
   const json* events = &root;
   if (root.is_object()) {
-    if (root.value("format", "") != "octoray-view-script" || !root.contains("events")) {
+    if (!root.contains("format") || root["format"] != "octoray-view-script" || !root.contains("events")) {
       throw Error(path, "expected {\"format\": \"octoray-view-script\", \"events\": [...]}");
     }
     events = &root["events"];
@@ -186,6 +186,9 @@ std::vector<ScriptStep> parseScript(const json& root, const std::string& path) {
           } catch (const Error& err) {
             r.fail(err.reason());
           }
+        }
+        if (e.contains("patientInfo") && !e["patientInfo"].is_boolean()) {
+          r.fail("\"patientInfo\": expected true or false");
         }
         s.patientInfo = e.value("patientInfo", false);
         [[fallthrough]];
