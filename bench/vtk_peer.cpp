@@ -96,22 +96,9 @@ std::array<int, 2> parseSize(const std::string& text) {
   return {w, h};
 }
 
-bool isStore(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char magic[sizeof(volume::kStoreMagic)] = {};
-  in.read(magic, sizeof(magic));
-  return in.gcount() == sizeof(magic) &&
-         std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
-}
-
 // The full-resolution volume exactly as octoray-render's reference path loads it.
 gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
-  if (isStore(path)) {
-    const volume::StoreReader store(path);
-    return gpu::reference::ReferenceVolume::fromStore(store);
-  }
-  const auto source = openVolume(path);
-  return gpu::reference::ReferenceVolume::fromSource(*source);
+  return gpu::reference::ReferenceVolume::fromPath(path);
 }
 
 transfer::TransferFunction loadTransferFunction(const Arguments& a) {

@@ -5,12 +5,15 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <span>
 #include <unordered_map>
 
 #include "octoray/core/error.h"
+#include "octoray/dicom/formats.h"
 #include "octoray/dicom/volume_source.h"
+#include "octoray/volume/store_format.h"
 #include "octoray/volume/store_reader.h"
 
 namespace octoray::gpu::reference {
@@ -225,6 +228,18 @@ ReferenceVolume ReferenceVolume::fromCut(const volume::StoreReader& store,
 }
 
 bool ReferenceVolume::hasCoarseLeaves() const { return cut_ && cut_->hasCoarseLeaves(); }
+
+ReferenceVolume ReferenceVolume::fromPath(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  char magic[sizeof(volume::kStoreMagic)] = {};
+  in.read(magic, sizeof(magic));
+  if (in.gcount() == sizeof(magic) && std::equal(magic, magic + sizeof(magic), volume::kStoreMagic)) {
+    const volume::StoreReader store(path);
+    return fromStore(store);
+  }
+  const auto source = openVolume(path);
+  return fromSource(*source);
+}
 
 Vec3 ReferenceVolume::gradientIndex(const Vec3& p) const {
   if (cut_) return cut_->gradient(p);

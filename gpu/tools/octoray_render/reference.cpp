@@ -8,22 +8,12 @@
 #include <iostream>
 
 #include "octoray/core/error.h"
-#include "octoray/dicom/formats.h"
 #include "octoray/gpu/working_set.h"
 #include "octoray/gpu/reference/reference_volume.h"
 #include "render_tool.h"
 
 namespace octoray::render_tool {
 namespace {
-
-gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
-  if (isStore(path)) {
-    const volume::StoreReader store(path);
-    return gpu::reference::ReferenceVolume::fromStore(store);
-  }
-  const auto source = openVolume(path);
-  return gpu::reference::ReferenceVolume::fromSource(*source);
-}
 
 // --frustum-cut: the store's leaf-level nodes in the camera's view (gpu::nodesInFrustum) are
 // the only bricks read, so a zoomed view of a store far larger than memory gets its
@@ -62,7 +52,7 @@ int runReference(const Arguments& a) {
   nlohmann::json frustumCut;
   const auto volume = [&] {
     if (a.frustumCut) return loadFrustumCut(a, camera, frustumCut);
-    auto full = loadVolume(a.path);
+    auto full = gpu::reference::ReferenceVolume::fromPath(a.path);
     camera = makeCamera(a, {full.dims(), full.patientFromIndex()});
     return full;
   }();

@@ -56,6 +56,8 @@ class ReferenceVolume {
   // Reads every leaf brick of the store and keeps each brick's interior (values in physical
   // units through the store's value mapping).
   static ReferenceVolume fromStore(const volume::StoreReader& store);
+  // fromStore for an octree store, else fromSource over what openVolume reads at `path`.
+  static ReferenceVolume fromPath(const std::string& path);
   // The cut's leaves (see above); reads each brick they are drawn from once. Throws
   // octoray::Error for a leaf that is not a node of the store, an ancestor above the root, two
   // leaves that overlap, or a brick that cannot be read.
