@@ -172,12 +172,10 @@ def main():
             for v in vtk:
                 if v["medianMs"] is None or v["psnrDb"] is None:
                     continue
-                candidates = [o for o in ours if o["psnrDb"] is not None and o["medianMs"] is not None
-                              and o["psnrDb"] >= v["psnrDb"] and o["knob"] not in EFFECTS]
-                if not candidates:
+                best = fastest_as_accurate(ours, v["psnrDb"])
+                if best is None:
                     report.append(f"| {v['renderer']} | {v['setting']} | {fmt(v['medianMs'])} | {fmt(v['psnrDb'])} | none as accurate | | | |")
                     continue
-                best = min(candidates, key=lambda o: o["medianMs"])
                 report.append(f"| {v['renderer']} | {v['setting']} | {fmt(v['medianMs'])} | {fmt(v['psnrDb'])} | "
                               f"{best['knob']} {best['setting']} | {fmt(best['medianMs'])} | {fmt(best['psnrDb'])} | "
                               f"{best['medianMs'] / v['medianMs']:.2f} |")
