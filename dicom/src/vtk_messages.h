@@ -1,5 +1,5 @@
 #pragma once
-// Internal: collects the messages VTK objects and MetaIO emit, so a reader's failure becomes
+// Internal: collects the messages VTK objects emit, so a reader's failure becomes
 // one octoray::Error naming the file instead of text (and object dumps) on stderr.
 
 #include <vtkAlgorithm.h>
@@ -9,9 +9,6 @@
 #include <vtkNew.h>
 #include <vtkObject.h>
 
-#include <iostream>
-#include <mutex>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -75,45 +72,6 @@ class VtkMessages {
   vtkNew<vtkCallbackCommand> callback_;
   std::vector<std::string> errors_;
   std::vector<std::string> warnings_;
-};
-
-// Captures what is written to std::cerr and std::cout while it lives: MetaIO reports its
-// failures there directly, with no way to turn that off. The streams are process-wide, so
-// captures are serialised, and whatever another thread prints meanwhile is captured as well.
-class StdStreamCapture {
- public:
-  StdStreamCapture()
-      : lock_(mutex()),
-        oldErr_(std::cerr.rdbuf(captured_.rdbuf())),
-        oldOut_(std::cout.rdbuf(captured_.rdbuf())) {}
-  ~StdStreamCapture() {
-    std::cerr.rdbuf(oldErr_);
-    std::cout.rdbuf(oldOut_);
-  }
-  StdStreamCapture(const StdStreamCapture&) = delete;
-  StdStreamCapture& operator=(const StdStreamCapture&) = delete;
-
-  // The first non-blank line captured so far, trimmed ("" when nothing was printed).
-  std::string firstLine() const {
-    std::istringstream lines(captured_.str());
-    for (std::string line; std::getline(lines, line);) {
-      const auto first = line.find_first_not_of(" \t\r");
-      if (first == std::string::npos) continue;
-      return line.substr(first, line.find_last_not_of(" \t\r") - first + 1);
-    }
-    return {};
-  }
-
- private:
-  static std::mutex& mutex() {
-    static std::mutex m;
-    return m;
-  }
-
-  std::unique_lock<std::mutex> lock_;
-  std::ostringstream captured_;
-  std::streambuf* oldErr_;
-  std::streambuf* oldOut_;
 };
 
 }  // namespace octoray::detail
