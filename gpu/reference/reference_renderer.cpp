@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <limits>
@@ -240,6 +241,66 @@ RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
   return out;
 }
 
+// A surface thinner than the step: three consecutive samples x[0] < x[1] < x[2] whose excesses
+// times s are g, all positive, the middle one the smallest, may straddle a dip of the
+// interpolant through zero that no sample sees (a ray grazing thin bone). With L the steepest
+// slope seen between the points, the Piyavskii-Shubert bound min over [a, b] >=
+// (g(a) + g(b) - L' (b - a)) / 2 with L' = kIsoDipSlopeSafety x L (slopes may be steeper than
+// any seen) decides whether a dip is possible; the probe goes where the bound with L itself has
+// its argmin (exact for a symmetric tent, the shape of the trilinear interpolant along an
+// axis), or with L' where that bound stays above zero. A probe replaces one of the three; at
+// most kIsoDipProbes. Returns the first probe with g <= 0 (its excess in fHit), or NaN. The
+// GPU's isoDip (raycast.frag.glsl) follows the same rule.
+constexpr int kIsoDipProbes = 4;
+constexpr double kIsoDipSlopeSafety = 2.0;
+
+// The lower of the two halves' bounds with `slope`, and where it is reached.
+std::pair<double, double> isoDipArgmin(const std::array<double, 3>& x,
+                                       const std::array<double, 3>& g, double slope) {
+  const double boundA = 0.5 * (g[0] + g[1] - slope * (x[1] - x[0]));
+  const double boundB = 0.5 * (g[1] + g[2] - slope * (x[2] - x[1]));
+  return boundA <= boundB
+             ? std::pair{0.5 * (x[0] + x[1]) + (g[0] - g[1]) / (2.0 * slope), boundA}
+             : std::pair{0.5 * (x[1] + x[2]) + (g[1] - g[2]) / (2.0 * slope), boundB};
+}
+
+template <typename Excess>
+double isoDip(const Excess& excess, double s, std::array<double, 3> x, std::array<double, 3> g,
+              double& fHit) {
+  double slope = 0.0;
+  for (int probe = 0; probe < kIsoDipProbes; ++probe) {
+    slope = std::max(slope, std::max((g[0] - g[1]) / (x[1] - x[0]), (g[2] - g[1]) / (x[2] - x[1])));
+    if (!(slope > 0.0)) return kNaN;
+    const auto [xSafe, safeBound] = isoDipArgmin(x, g, kIsoDipSlopeSafety * slope);
+    if (safeBound > 0.0) return kNaN;
+    const auto [xFit, bound] = isoDipArgmin(x, g, slope);
+    const double xv = bound > 0.0 ? xSafe : xFit;
+    if (xv <= x[0] || xv >= x[2] || xv == x[1]) return kNaN;
+    const double f = excess(xv);
+    const double gv = s * f;
+    if (gv <= 0.0) {
+      fHit = f;
+      return xv;
+    }
+    if (xv < x[1]) {
+      if (gv < g[1]) {
+        x = {x[0], xv, x[1]};
+        g = {g[0], gv, g[1]};
+      } else {
+        x[0] = xv;
+        g[0] = gv;
+      }
+    } else if (gv < g[1]) {
+      x = {x[1], xv, x[2]};
+      g = {g[1], gv, g[2]};
+    } else {
+      x[2] = xv;
+      g[2] = gv;
+    }
+  }
+  return kNaN;
+}
+
 RayResult marchIso(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& directionPatient,
                    const Chord& chord) {
   RayResult out;
@@ -250,8 +311,27 @@ RayResult marchIso(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
     ++out.samples;
     return sampleAt(*f.volume, indexPoint(o, d, t)) - iso;
   };
+  // The crossing inside [lo, hi], whose excesses differ in sign: bisection keeps a bracket
+  // with a sign change; the last step is the linear root.
+  auto root = [&](double lo, double hi, double flo, double fhi) {
+    while ((hi - lo) * voxelsPerMm > kIsoToleranceVoxels) {
+      const double mid = 0.5 * (lo + hi);
+      if (mid <= lo || mid >= hi) break;
+      const double fm = excess(mid);
+      if (fm == 0.0) return mid;
+      if ((fm < 0) == (flo < 0)) {
+        lo = mid;
+        flo = fm;
+      } else {
+        hi = mid;
+        fhi = fm;
+      }
+    }
+    return lo + (hi - lo) * (flo / (flo - fhi));
+  };
   double ta = chord.tNear;
   double fa = excess(ta);
+  double tBefore = kNaN, fBefore = 0.0;  // the sample before ta
   double hit = fa == 0.0 ? ta : kNaN;
   for (int64_t s = 1; s <= n && std::isnan(hit); ++s) {
     const double tb = s == n ? chord.tFar : chord.tNear + static_cast<double>(s) * delta;
@@ -259,26 +339,18 @@ RayResult marchIso(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
     if (fb == 0.0) {
       hit = tb;
     } else if ((fa < 0) != (fb < 0)) {
-      // Bisection keeps a bracket with a sign change; the last step is the linear root.
-      double lo = ta, hi = tb, flo = fa, fhi = fb;
-      while ((hi - lo) * voxelsPerMm > kIsoToleranceVoxels) {
-        const double mid = 0.5 * (lo + hi);
-        if (mid <= lo || mid >= hi) break;
-        const double fm = excess(mid);
-        if (fm == 0.0) {
-          lo = hi = mid;
-          break;
-        }
-        if ((fm < 0) == (flo < 0)) {
-          lo = mid;
-          flo = fm;
-        } else {
-          hi = mid;
-          fhi = fm;
-        }
+      hit = root(ta, tb, fa, fb);
+    } else if (!std::isnan(tBefore) && (fBefore < 0) == (fa < 0)) {
+      const double sign = fa < 0 ? -1.0 : 1.0;
+      const std::array<double, 3> g{sign * fBefore, sign * fa, sign * fb};
+      if (g[1] < g[0] && g[1] <= g[2]) {
+        double fHit = 0.0;
+        const double xv = isoDip(excess, sign, {tBefore, ta, tb}, g, fHit);
+        if (!std::isnan(xv)) hit = fHit == 0.0 ? xv : root(tBefore, xv, fBefore, fHit);
       }
-      hit = lo == hi ? lo : lo + (hi - lo) * (flo / (flo - fhi));
     }
+    tBefore = ta;
+    fBefore = fa;
     ta = tb;
     fa = fb;
   }

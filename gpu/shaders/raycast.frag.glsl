@@ -225,6 +225,87 @@ vec3 gradientAt(vec3 texel, float levelScale) {
 }
 #endif
 
+#ifdef MODE_ISO
+// The isosurface's crossing inside [lo, hi], whose excesses (value - isovalue) flo and fhi
+// differ in sign: bisection, the last step the linear root (the reference's rule, marchIso).
+float isoRoot(vec3 p0, vec3 p1, float lo, float hi, float flo, float fhi, inout float samples) {
+  for (int i = 0; i < 40; ++i) {
+    float mid = 0.5 * (lo + hi);
+    if (mid <= lo || mid >= hi) break;
+    float fm = valueAt(p0 + mid * p1) - uIsoValue;
+    samples += 1.0;
+    if (fm == 0.0) return mid;
+    if ((fm < 0.0) == (flo < 0.0)) {
+      lo = mid;
+      flo = fm;
+    } else {
+      hi = mid;
+      fhi = fm;
+    }
+  }
+  return lo + (hi - lo) * (flo / (flo - fhi));
+}
+
+// A surface thinner than the step: three consecutive samples x.x < x.y < x.z whose excesses
+// times s are g, all positive, the middle one the smallest, may straddle a dip of the
+// interpolant through zero that no sample sees (a ray grazing thin bone). The reference's
+// isoDip, the same rule. With L the steepest slope seen between the points, the Piyavskii-
+// Shubert bound min over [a, b] >= (g(a) + g(b) - L' (b - a)) / 2 with L' = 2 L (slopes may be
+// steeper than any seen) decides whether a dip is possible; the probe goes where the bound
+// with L itself has its argmin (exact for a symmetric tent, the shape of the trilinear
+// interpolant along an axis), or with L' where that bound stays above zero. A probe replaces
+// one of the three; at most kIsoDipProbes. Returns the first probe with g <= 0 (its excess in
+// fHit), or -1. Probes are kept in [tMin, tMax], where the brick has texels.
+const int kIsoDipProbes = 4;
+const float kIsoDipSlopeSafety = 2.0;
+float isoDipArgmin(vec3 x, vec3 g, float slope, out float bound) {
+  float boundA = 0.5 * (g.x + g.y - slope * (x.y - x.x));
+  float boundB = 0.5 * (g.y + g.z - slope * (x.z - x.y));
+  bound = min(boundA, boundB);
+  return boundA <= boundB ? 0.5 * (x.x + x.y) + (g.x - g.y) / (2.0 * slope)
+                          : 0.5 * (x.y + x.z) + (g.y - g.z) / (2.0 * slope);
+}
+float isoDip(vec3 p0, vec3 p1, float s, vec3 x, vec3 g, float tMin, float tMax, inout float samples,
+             out float fHit) {
+  fHit = 0.0;
+  float slope = 0.0;
+  for (int probe = 0; probe < kIsoDipProbes; ++probe) {
+    slope = max(slope, max((g.x - g.y) / (x.y - x.x), (g.z - g.y) / (x.z - x.y)));
+    if (!(slope > 0.0)) return -1.0;
+    float safeBound, bound;
+    float xSafe = isoDipArgmin(x, g, kIsoDipSlopeSafety * slope, safeBound);
+    if (safeBound > 0.0) return -1.0;
+    float xv = isoDipArgmin(x, g, slope, bound);
+    if (bound > 0.0) xv = xSafe;
+    xv = clamp(xv, tMin, tMax);
+    if (xv <= x.x || xv >= x.z || xv == x.y) return -1.0;
+    float f = valueAt(p0 + xv * p1) - uIsoValue;
+    samples += 1.0;
+    float gv = s * f;
+    if (gv <= 0.0) {
+      fHit = f;
+      return xv;
+    }
+    if (xv < x.y) {
+      if (gv < g.y) {
+        x = vec3(x.x, xv, x.y);
+        g = vec3(g.x, gv, g.y);
+      } else {
+        x.x = xv;
+        g.x = gv;
+      }
+    } else if (gv < g.y) {
+      x = vec3(x.y, xv, x.z);
+      g = vec3(g.y, gv, g.z);
+    } else {
+      x.z = xv;
+      g.z = gv;
+    }
+  }
+  return -1.0;
+}
+#endif
+
 #if defined(SHADING) || defined(MODE_ISO)
 vec3 phong(vec3 color, vec3 gradient, vec3 rayDir) {
   float magnitude = length(gradient);
@@ -349,6 +430,11 @@ void main() {
   float best = -kInfinity;
   float bestT = t0;
   bool started = false;
+#endif
+#ifdef MODE_ISO
+  // The ray's last iso sample and the one before it (t, excess), carried from leaf to leaf for
+  // the thin-surface test (t < 0: none).
+  vec2 isoLast = vec2(-1.0, 0.0), isoBefore = vec2(-1.0, 0.0);
 #endif
   bool done = false;
   float tLast = t0;
@@ -557,45 +643,74 @@ void main() {
       if (k1 > k0) {
         float ta = t0 + float(k0) * delta;
         float fa = valueAt(p0 + ta * p1) - uIsoValue;
-#ifdef STATS
-        stats.x += 1.0;
-#endif
+        float samples = 1.0;
+        // The sample before ta: the previous leaf's, when that leaf ended where this one starts.
+        vec2 before = isoLast.x >= 0.0 && abs(isoLast.x - ta) <= 1e-3 * delta ? isoBefore
+                                                                            : vec2(-1.0, 0.0);
         float hit = fa == 0.0 ? ta : -1.0;
-        for (int k = k0; k < k1 && hit < 0.0; k += m) {
-          int kb = min(k + m, k1);
-          float tb = kb == n ? t1 : t0 + float(kb) * delta;
-          float fb = valueAt(p0 + tb * p1) - uIsoValue;
-#ifdef STATS
-          stats.x += 1.0;
-#endif
-          if (fb == 0.0) {
-            hit = tb;
-          } else if ((fa < 0.0) != (fb < 0.0)) {
-            float lo = ta, hi = tb, flo = fa, fhi = fb;
-            for (int i = 0; i < 40; ++i) {
-              float mid = 0.5 * (lo + hi);
-              if (mid <= lo || mid >= hi) break;
-              float fm = valueAt(p0 + mid * p1) - uIsoValue;
-#ifdef STATS
-              stats.x += 1.0;
-#endif
-              if (fm == 0.0) {
-                lo = hi = mid;
+        // A tight loop of one fetch per sample runs until a bracket (a sign change) or a
+        // possible dip (isoDip's first test passes); what those need runs outside it, where
+        // the other pixels of a SIMD group do not pay for it (../shared/LLVMPIPE.md).
+        int k = k0;
+        while (k < k1 && hit < 0.0) {
+          float tb = ta, fb = fa;
+          bool bracket = false, dip = false;
+          for (; k < k1; k += m) {
+            int kb = min(k + m, k1);
+            tb = kb == n ? t1 : t0 + float(kb) * delta;
+            fb = valueAt(p0 + tb * p1) - uIsoValue;
+            samples += 1.0;
+            if (fb == 0.0 || (fa < 0.0) != (fb < 0.0)) {
+              bracket = true;
+              break;
+            }
+            float s = fa < 0.0 ? -1.0 : 1.0;
+            float g0 = s * before.y, g1 = s * fa, g2 = s * fb;
+            if (before.x >= 0.0 && g0 > g1 && g2 >= g1) {
+              float ha = ta - before.x, hb = tb - ta;
+              float slope = kIsoDipSlopeSafety * max((g0 - g1) / ha, (g2 - g1) / hb);
+              if (min(g0 + g1 - slope * ha, g1 + g2 - slope * hb) <= 0.0) {
+                dip = true;
                 break;
               }
-              if ((fm < 0.0) == (flo < 0.0)) {
-                lo = mid;
-                flo = fm;
-              } else {
-                hi = mid;
-                fhi = fm;
+            }
+            before = vec2(ta, fa);
+            ta = tb;
+            fa = fb;
+          }
+          if (bracket) {
+            hit = fb == 0.0 ? tb : isoRoot(p0, p1, ta, tb, fa, fb, samples);
+          } else if (dip) {
+            // Where this leaf's brick has texels to interpolate (border included).
+            vec3 lo = slotOrigin(slot) + 0.5, hi = lo + float(BRICK_SIZE + 2 * BORDER - 1);
+            float tMin = -kInfinity, tMax = kInfinity;
+            for (int a = 0; a < 3; ++a) {
+              if (p1[a] != 0.0) {
+                float ta0 = (lo[a] - p0[a]) / p1[a], ta1 = (hi[a] - p0[a]) / p1[a];
+                tMin = max(tMin, min(ta0, ta1));
+                tMax = min(tMax, max(ta0, ta1));
               }
             }
-            hit = lo == hi ? lo : lo + (hi - lo) * (flo / (flo - fhi));
+            if (before.x >= tMin) {
+              float s = fa < 0.0 ? -1.0 : 1.0;
+              float fHit;
+              float xv = isoDip(p0, p1, s, vec3(before.x, ta, tb), s * vec3(before.y, fa, fb), tMin,
+                                tMax, samples, fHit);
+              if (xv >= 0.0) {
+                hit = fHit == 0.0 ? xv : isoRoot(p0, p1, before.x, xv, before.y, fHit, samples);
+              }
+            }
+            before = vec2(ta, fa);
+            ta = tb;
+            fa = fb;
+            k += m;
           }
-          ta = tb;
-          fa = fb;
         }
+        isoBefore = before;
+        isoLast = vec2(ta, fa);
+#ifdef STATS
+        stats.x += samples;
+#endif
         if (hit >= 0.0) {
           vec4 c = classifyExact(uIsoValue);
 #ifdef SHADING

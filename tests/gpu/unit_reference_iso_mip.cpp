@@ -74,6 +74,40 @@ TEST(ReferenceIso, RefinesToTheExactCrossing) {
   EXPECT_TRUE(std::isinf(miss.depth));
 }
 
+// One plane of 1000 (k = 8) in zeros: along z the interpolant is a tent 2 voxels wide, and the
+// isovalue 990 cuts from it a sliver 0.02 voxel thick, between z = 7.99 and 8.01. A ray
+// grazing thin bone meets such a sliver; the default step (0.25 voxel) mostly straddles it:
+// no sample is above 990, the surface is there all the same (isoDip).
+TEST(ReferenceIso, FindsASurfaceThinnerThanTheStep) {
+  // 18 planes: the domain's chord is not a multiple of the step from z = -0.5 to the peak.
+  const auto volume = makeVolume({12, 12, 18}, scaling(1, 1, 1), [](int64_t, int64_t, int64_t k) {
+    return k == 8 ? 1000.0 : 0.0;
+  });
+  const auto tent = [](double z) { return 1000.0 * std::max(0.0, 1.0 - std::abs(z - 8.0)); };
+  int straddled = 0, cases = 0;
+  for (const Vec3 d : {Vec3{0, 0, 1}, normalize({0.05, 0.03, 1}), normalize({-0.1, 0.08, 1})}) {
+    for (double step = 0.2; step <= 0.3001; step += 0.01) {
+      const Vec3 origin{5.3, 6.1, -10};
+      RenderOptions options = isoAt(990);
+      options.stepMm = step;
+      const Pixel px = renderRay(volume, constantTf(1), options, origin, d);
+      // The samples the march takes: the domain's chord in equal steps, from its entry.
+      const double entry = (-0.5 - origin.z) / d.z, chord = 18.0 / d.z;
+      const double n = std::ceil(chord / step), delta = chord / n;
+      bool seen = false;
+      for (int s = 0; s <= static_cast<int>(n); ++s) {
+        seen = seen || tent(origin.z + (entry + s * delta) * d.z) >= 990.0;
+      }
+      straddled += seen ? 0 : 1;
+      ++cases;
+      ASSERT_EQ(px.a, 1.0) << "step " << step << ", direction " << d.x << " " << d.y;
+      EXPECT_NEAR(px.depth, (7.99 - origin.z) / d.z, 1e-4) << "step " << step;
+    }
+  }
+  // Most of these rays straddle the sliver: the test is about surfaces between samples.
+  EXPECT_GE(straddled, cases * 3 / 4) << straddled << " of " << cases;
+}
+
 TEST(ReferenceIso, ConstantVolumeAtTheIsovalueHasNoNanNormal) {
   const auto volume = makeVolume({6, 6, 6}, scaling(1, 1, 1), [](auto...) { return 3.0; });
   auto tf = constantTf(1);
