@@ -617,7 +617,8 @@ MetaHeader readMetaHeader(const std::string& path) {
   throw Error(path, "the MetaImage header has no ElementDataFile field");
 }
 
-// `count` finite numbers (integers >= 1 with `dimensions`), or a message naming the field.
+// `count` finite numbers (integers from 1 to 2^40 with `dimensions`), or a message naming the
+// field.
 std::vector<double> metaNumbers(const MetaHeader& header, const char* name, std::size_t count,
                                 bool dimensions, const std::string& path) {
   const std::string& text = *header.field(name);
@@ -625,8 +626,9 @@ std::vector<double> metaNumbers(const MetaHeader& header, const char* name, std:
   std::vector<double> out;
   for (const auto& token : tokens) {
     if (dimensions) {
+      // Exact as doubles; any larger size is refused by the volume's byte count anyway.
       const auto value = parseInteger(token);
-      if (!value || *value < 1) break;
+      if (!value || *value < 1 || *value > (int64_t{1} << 40)) break;
       out.push_back(static_cast<double>(*value));
     } else {
       const auto value = parseNumber(token);
@@ -767,6 +769,7 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
                                   dataFile.substr(0, 80)));
   }
   layout.dataPath = local ? path : dataFileBesideHeader(path, dataFile, "ElementDataFile");
+  detail::volumeBytes(layout.dims, layout.sampleType, path);  // sizes too large for any file
   int64_t headerSize = 0;
   if (const auto* text = header.field("HeaderSize")) {
     const auto value = parseInteger(*text);
