@@ -344,7 +344,7 @@ def parse():
     p.add_argument("--scenes", default="head,phantom512")
     p.add_argument("--modes", default="dvr-bone,dvr-soft,iso,mip")
     p.add_argument("--views", default="3",
-                   help="how many of the views, or which (a comma list of indices, e.g. 1,2)")
+                   help="how many of the views, or which (a comma list of indices, e.g. 1,2; one view: 2,)")
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--frames", type=int, default=5)
     p.add_argument("--knobs", default="")
