@@ -97,10 +97,6 @@ std::array<int, 2> parseSize(const std::string& text) {
 }
 
 // The full-resolution volume exactly as octoray-render's reference path loads it.
-gpu::reference::ReferenceVolume loadVolume(const std::string& path) {
-  return gpu::reference::ReferenceVolume::fromPath(path);
-}
-
 transfer::TransferFunction loadTransferFunction(const Arguments& a) {
   if (!a.tfPath.empty()) {
     return transfer::selectTransferFunction(transfer::loadTransferFunctions(a.tfPath), a.tfName,
@@ -331,7 +327,7 @@ int run(const Arguments& a) {
   gpu::VolumeDomain domain;
   vtkSmartPointer<vtkImageData> image;
   {
-    const auto volume = loadVolume(a.path);
+    const auto volume = gpu::reference::ReferenceVolume::fromPath(a.path);
     domain = gpu::VolumeDomain{volume.dims(), volume.patientFromIndex()};
     image = toVtkImage(volume);
   }

@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <fstream>
 #include <limits>
 #include <span>
 #include <unordered_map>
@@ -230,10 +229,7 @@ ReferenceVolume ReferenceVolume::fromCut(const volume::StoreReader& store,
 bool ReferenceVolume::hasCoarseLeaves() const { return cut_ && cut_->hasCoarseLeaves(); }
 
 ReferenceVolume ReferenceVolume::fromPath(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char magic[sizeof(volume::kStoreMagic)] = {};
-  in.read(magic, sizeof(magic));
-  if (in.gcount() == sizeof(magic) && std::equal(magic, magic + sizeof(magic), volume::kStoreMagic)) {
+  if (volume::isStoreFile(path)) {
     const volume::StoreReader store(path);
     return fromStore(store);
   }

@@ -81,6 +81,12 @@ uniform float uGradientScale;
 #endif
 
 uniform sampler1D uTf;        // rgb, extinction -ln(1 - alpha) per unit distance
+#if defined(MODE_MIP) && defined(CELL_SKIPPING)
+// The pool value below which a maximum shows black (gpu::mipVisibleFrom): cells and groups
+// of cells wholly below it are not evaluated (a ray that meets nothing above it stays empty,
+// as one through empty nodes of the working set does).
+uniform float uMipFloor;
+#endif
 #ifdef CELL_SKIPPING
 uniform sampler3D uCellRange; // (min, max) texel value per CELL_VOXELS^3 cell of every slot
 uniform sampler1D uTfNonZero; // entry i: uTf entries below i with opacity
@@ -764,7 +770,57 @@ void main() {
         }
         vec3 slotLo = slotOrigin(slot);
         vec3 slotHi = slotLo + float(BRICK_SIZE + 2 * BORDER - 2);
+#ifdef CELL_SKIPPING
+        // Cells are grouped by CELL_VOXELS per axis, group g holding the cells whose brick
+        // voxel index k has floor((k + 1) / CELL_VOXELS) = g: all their texels lie in the
+        // range of the brick's skipping cell g (its voxels and one more on each side). A group
+        // whose largest texel cannot raise the maximum, or shows black (below uMipFloor), is
+        // crossed in one step, to the plane where the DDA would have left its last cell (the
+        // same t the DDA computes: the visible maxima and their positions stay exact).
+        vec3 cellBase = slotLo + float(BORDER);
+        vec3 checkedGroup = vec3(-1.0);
+        float groupMax = kInfinity;  // the largest texel of checkedGroup
+#endif
         for (int piece = 0; piece < 4 * (BRICK_SIZE + 2); ++piece) {
+#ifdef CELL_SKIPPING
+          vec3 group = floor((cell - cellBase + 1.0) / float(CELL_VOXELS));
+          if (group != checkedGroup) {
+            checkedGroup = group;
+            groupMax = kInfinity;
+            if (all(greaterThanEqual(group, vec3(0.0))) && all(lessThan(group, vec3(float(kCells))))) {
+              groupMax = texelFetch(uCellRange, ivec3(slotIndex(slot) * float(kCells) + group), 0).g;
+#ifdef STATS
+              stats.x += 1.0;
+#endif
+            }
+          }
+          // Checked at every cell: the maximum may rise past the group's inside it.
+          if (groupMax < uMipFloor || (started && groupMax <= best)) {
+            // The plane where the ray leaves the group's last cell on each axis.
+            vec3 first = cellBase + group * float(CELL_VOXELS) - 1.0;
+            vec3 tPlane = vec3(kInfinity);
+            for (int a = 0; a < 3; ++a) {
+              if (p1[a] != 0.0) {
+                tPlane[a] = ((p1[a] > 0.0 ? first[a] + float(CELL_VOXELS) : first[a]) - u0[a]) * invP[a];
+              }
+            }
+            float tg = min(min(tPlane.x, tPlane.y), tPlane.z);
+            if (!(tg < tEnd)) break;
+            int a = tPlane.x <= tPlane.y ? (tPlane.x <= tPlane.z ? 0 : 2) : (tPlane.y <= tPlane.z ? 1 : 2);
+            // The cell entered there: across the exit axis the next group's first cell,
+            // on the others the cell holding the point, kept inside the group.
+            vec3 ug = u0 + tg * p1;
+            vec3 next = floor(ug);
+            for (int b = 0; b < 3; ++b) {
+              if (p1[b] < 0.0 && ug[b] == next[b]) next[b] -= 1.0;
+            }
+            next = clamp(next, first, first + float(CELL_VOXELS - 1));
+            next[a] = p1[a] > 0.0 ? first[a] + float(CELL_VOXELS) : first[a] - 1.0;
+            cell = next;
+            ta = max(ta, tg);
+            continue;
+          }
+#endif
           vec3 tNext = vec3(kInfinity);
           for (int a = 0; a < 3; ++a) {
             if (p1[a] != 0.0) tNext[a] = ((p1[a] > 0.0 ? cell[a] + 1.0 : cell[a]) - u0[a]) * invP[a];
@@ -786,8 +842,13 @@ void main() {
 #ifdef STATS
             stats.x += 1.0;
 #endif
-            vec4 top = max(lo, hi);
-            if (!started || max(max(top.x, top.y), max(top.z, top.w)) > best) {
+            vec4 top4 = max(lo, hi);
+            float top = max(max(top4.x, top4.y), max(top4.z, top4.w));
+#ifdef CELL_SKIPPING
+            if (top >= uMipFloor && (!started || top > best)) {
+#else
+            if (!started || top > best) {
+#endif
               float h = tb - ta;
               float v0 = trilinearCell(u0 + ta * p1 - c0, lo, hi);
               float v1 = trilinearCell(u0 + (ta + h / 3.0) * p1 - c0, lo, hi);

@@ -233,7 +233,11 @@ std::vector<std::string> Raycaster::Impl::defines(const transfer::TransferFuncti
       break;
     case RaycastMode::Mip:
       d.emplace_back("MODE_MIP");
-      if (o.mip == RaycastOptions::MipMethod::Sampled) d.emplace_back("MIP_SAMPLED");
+      if (o.mip == RaycastOptions::MipMethod::Sampled) {
+        d.emplace_back("MIP_SAMPLED");
+      } else if (o.cellSkipping) {
+        d.emplace_back("CELL_SKIPPING");  // groups of cells that cannot raise the maximum
+      }
       break;
   }
   d.push_back(fmt::format("BRICK_SIZE {}", layout.brickSize()));
@@ -550,6 +554,12 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
   glUniform1f(prog.uniform("uValueScale"), static_cast<float>(s));
   glUniform1f(prog.uniform("uValueOffset"),
               static_cast<float>(floatPool ? 0.0 : im.store.header().valueOffset));
+  if (options.mode == RaycastMode::Mip) {
+    // The visibility floor in the pool's units (none where stored values decrease).
+    const double big = std::numeric_limits<float>::max();
+    const double floor = s > 0 ? (mipVisibleFrom(tf) - (floatPool ? 0.0 : im.store.header().valueOffset)) / s : -big;
+    glUniform1f(prog.uniform("uMipFloor"), static_cast<float>(std::clamp(floor, -big, big)));
+  }
   const auto [lo, hi] = im.tfRange();
   const double n = kTfTableSize;
   glUniform2f(prog.uniform("uTfMap"), static_cast<float>((n - 1) / ((hi - lo) * n)),

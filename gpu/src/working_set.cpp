@@ -35,18 +35,7 @@ class EmptinessTest {
         table_.emplace(transfer::OpacitySummedAreaTable::overRange(tf, lo, hi, 65536));
       }
     } else if (options.mode == RaycastMode::Mip) {
-      // The lowest value with non-zero opacity: the TF is zero below it (clamped low end).
-      mipThreshold_ = -std::numeric_limits<double>::infinity();
-      if (!tf.opacity.empty() && !(tf.opacity.front().alpha > 0)) {
-        mipThreshold_ = std::numeric_limits<double>::infinity();
-        for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
-          if (tf.opacity[i].alpha > 0) {
-            // Opacity rises from the previous point's value on.
-            mipThreshold_ = i > 0 ? tf.opacity[i - 1].value : tf.opacity[i].value;
-            break;
-          }
-        }
-      }
+      mipThreshold_ = mipVisibleFrom(tf);
     }
   }
 
@@ -153,6 +142,15 @@ class Projector {
 };
 
 }  // namespace
+
+double mipVisibleFrom(const transfer::TransferFunction& tf) {
+  if (tf.opacity.empty() || tf.opacity.front().alpha > 0) return -std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
+    // Opacity rises from the previous point's value on.
+    if (tf.opacity[i].alpha > 0) return i > 0 ? tf.opacity[i - 1].value : tf.opacity[i].value;
+  }
+  return std::numeric_limits<double>::infinity();
+}
 
 std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat4& patientFromIndex,
                                    const volume::NodeKey& key) {

@@ -72,14 +72,6 @@ std::array<int, 2> parseSize(const std::string& text) {
   return {w, h};
 }
 
-bool isStore(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char magic[sizeof(volume::kStoreMagic)] = {};
-  in.read(magic, sizeof(magic));
-  return in.gcount() == sizeof(magic) &&
-         std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
-}
-
 // The PNG and the EXR together: both or neither (gpu::writeImageOutputs).
 void writeOutputs(const gpu::Image& image, const Arguments& a) {
   gpu::writeImageOutputs(image, {a.output, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, a.exr});
@@ -99,7 +91,7 @@ struct ValueKind {
 ValueKind valueKind(const std::string& path) {
   ValueKind kind;
   bool integer = true;
-  if (isStore(path)) {
+  if (volume::isStoreFile(path)) {
     const volume::StoreReader store(path);
     const nlohmann::json provenance = nlohmann::json::parse(store.provenanceJson(), nullptr, false);
     if (provenance.is_object() && provenance.contains("source") &&
@@ -425,7 +417,7 @@ int runGpu(const Arguments& a) {
 
   auto start = std::chrono::steady_clock::now();
   std::optional<TemporaryStore> temporary;
-  if (!isStore(a.path)) temporary.emplace(a.path);
+  if (!volume::isStoreFile(a.path)) temporary.emplace(a.path);
   const volume::StoreReader store(temporary ? temporary->path() : a.path);
   const double loadMs = millisecondsSince(start);
 
@@ -698,7 +690,8 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 12))
       ->capture_default_str();
   app.add_flag("--no-cell-skipping", a.noCellSkipping,
-               "GPU: sample transparent 8^3 cells of bricks too (same picture; to measure)");
+               "GPU: sample transparent 8^3 cells of bricks too, and in exact MIP evaluate cells that "
+               "cannot raise the maximum (same picture; to measure)");
   app.add_option("--silhouette", a.silhouette,
                  "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")

@@ -658,12 +658,15 @@ TEST_F(WorkingSetTest, ClipBoxCutsTheRaysToTheBox) {
   const Frame whole = renderer.render(camera, bone, options);
   EXPECT_EQ(compare(full.image, whole.image).maxAbsError, 0.0);
 
+  // MIP with a TF under which every maximum shows (none is left unfound as invisible).
+  transfer::TransferFunction seen = bone;
+  seen.opacity = {{-1024, 0.05f}, {3000, 1.0f}};
   options.mode = RaycastMode::Mip;
   options.clip.enabled = false;
-  const Frame mip = renderer.render(camera, bone, options);
+  const Frame mip = renderer.render(camera, seen, options);
   options.clip.enabled = true;
   options.clip.hi[0] = 63.5;
-  const Frame half = renderer.render(camera, bone, options);
+  const Frame half = renderer.render(camera, seen, options);
   const Mat4 indexFromPatient = store.patientFromIndex().inverseAffine();
   int kept = 0, removed = 0;
   for (int y = 0; y < 96; ++y) {
@@ -682,7 +685,7 @@ TEST_F(WorkingSetTest, ClipBoxCutsTheRaysToTheBox) {
   EXPECT_GT(kept, 1000);
   EXPECT_GT(removed, 1000);
   options.clip.hi[0] = -1;  // lo > hi
-  EXPECT_THROW(renderer.render(camera, bone, options), Error);
+  EXPECT_THROW(renderer.render(camera, seen, options), Error);
 }
 
 }  // namespace

@@ -9,7 +9,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
-#include <fstream>
 #include <limits>
 #include <map>
 
@@ -17,22 +16,12 @@
 #include "octoray/core/paths.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/volume/store_builder.h"
-#include "octoray/volume/store_format.h"
+#include "octoray/volume/store_reader.h"
 
 namespace octoray::viewer {
 namespace fs = std::filesystem;
 
 fs::path defaultCacheDir() { return userCacheDir(); }
-
-bool isStoreFile(const fs::path& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) return false;
-  std::ifstream in(path, std::ios::binary);
-  char magic[sizeof(volume::kStoreMagic)] = {};
-  in.read(magic, sizeof(magic));
-  return in.gcount() == sizeof(magic) &&
-         std::equal(magic, magic + sizeof(magic), volume::kStoreMagic);
-}
 
 std::string storeCacheKey(VolumeSource& source) {
   const VolumeInfo& info = source.info();
@@ -309,7 +298,7 @@ std::optional<IncomingGrid> incomingGrid(const IncomingSeries& series, const Vol
 // ---- Dataset -------------------------------------------------------------------------------
 
 Dataset::Dataset(const std::string& path, const fs::path& cacheDir) : path_(path), cacheDir_(cacheDir) {
-  if (isStoreFile(path)) {
+  if (volume::isStoreFile(path)) {
     store_ = std::make_unique<volume::StoreReader>(path);  // throws on damage
     storePath_ = path;
     const auto& h = store_->header();
@@ -489,7 +478,7 @@ void Dataset::importThread() {
     fs::create_directories(cacheDir_);
     const fs::path target = cacheDir_ / (key + ".octoray");
     bool reuse = false;
-    if (isStoreFile(target)) {
+    if (volume::isStoreFile(target)) {
       try {
         volume::StoreReader check(target.string());
         reuse = true;

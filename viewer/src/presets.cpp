@@ -40,14 +40,15 @@ std::vector<WindowLevelPreset> loadWindowLevelPresets(const std::filesystem::pat
       throw bad("expected name, window and level");
     }
     // Optional fields: absent, or of their type (never converted: a key of 1.5 is no key).
-    if (p.contains("key") && !p["key"].is_number_integer()) throw bad("key must be an integer 0-9");
+    const char* const keyRule = "key must be an integer 1-9 (or 0 for none)";
+    if (p.contains("key") && !p["key"].is_number_integer()) throw bad(keyRule);
     if (p.contains("source") && !p["source"].is_string()) throw bad("source must be a string");
     WindowLevelPreset w;
     w.name = p["name"].get<std::string>();
     w.window = p["window"].get<double>();
     w.level = p["level"].get<double>();
     const int64_t key = p.contains("key") ? p["key"].get<int64_t>() : 0;
-    if (key < 0 || key > 9) throw bad("key must be 1-9 (or 0 for none)");
+    if (key < 0 || key > 9) throw bad(keyRule);
     w.key = static_cast<int>(key);
     w.source = p.contains("source") ? p["source"].get<std::string>() : std::string();
     if (!std::isfinite(w.window) || w.window < 1 || !std::isfinite(w.level)) {

@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <limits>
 
 #include <fmt/format.h>
@@ -34,6 +35,15 @@ bool readAt(int fd, void* buffer, std::size_t bytes, uint64_t offset) {
 }
 
 }  // namespace
+
+bool isStoreFile(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) return false;
+  std::ifstream in(path, std::ios::binary);
+  char magic[sizeof(kStoreMagic)] = {};
+  in.read(magic, sizeof(magic));
+  return in.gcount() == sizeof(magic) && std::equal(magic, magic + sizeof(magic), kStoreMagic);
+}
 
 StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileBytes,
                              const std::string& path) {

@@ -10,6 +10,7 @@
 #include "octoray/core/error.h"
 #include "octoray/gpu/working_set.h"
 #include "octoray/gpu/reference/reference_volume.h"
+#include "octoray/volume/store_reader.h"
 #include "render_tool.h"
 
 namespace octoray::render_tool {
@@ -20,7 +21,7 @@ namespace {
 // full-resolution truth. Sets the camera; refuses a cut that would not fit in memory.
 gpu::reference::ReferenceVolume loadFrustumCut(const Arguments& a, gpu::Camera& camera,
                                                nlohmann::json& report) {
-  if (!isStore(a.path)) throw Error(a.path, "--frustum-cut needs an octree store");
+  if (!volume::isStoreFile(a.path)) throw Error(a.path, "--frustum-cut needs an octree store");
   const volume::StoreReader store(a.path);
   const volume::OctreeLayout& layout = store.layout();
   const int leafLevel = layout.leafLevel();

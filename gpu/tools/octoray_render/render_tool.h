@@ -53,7 +53,6 @@ struct Arguments {
 double millisecondsSince(std::chrono::steady_clock::time_point start);
 // "512x384": two positive integers; throws octoray::Error otherwise.
 std::array<int, 2> parseSize(const std::string& text);
-bool isStore(const std::string& path);
 // The PNG and the EXR together: both or neither (gpu::writeImageOutputs).
 void writeOutputs(const gpu::Image& image, const Arguments& a);
 transfer::TransferFunction loadTransferFunction(const Arguments& a);

@@ -70,8 +70,10 @@ struct RaycastOptions {
   enum class MipMethod { Exact, Sampled } mip = MipMethod::Exact;
   double lodPixels = 1.0;          // working-set refinement target; 0: finest level everywhere
   bool stats = false;              // per-pixel counters (a separate variant)
-  // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity
-  // (exact: the picture is bit for bit the same; off only to measure what it saves).
+  // DVR: skip the samples of 8^3-voxel cells of a brick whose values all map to zero opacity;
+  // exact MIP: cross the 8^3 groups of trilinear cells whose largest texel cannot raise the
+  // maximum in one step (exact: the picture is bit for bit the same; off only to measure
+  // what it saves).
   bool cellSkipping = true;
   // DVR: pre-integrated classification (paper 003 §5.3): each step is a segment from the
   // previous sample's value to this one's, classified through transfer::SegmentExtinctionTable
@@ -133,7 +135,7 @@ struct FrameStats {
 
 struct Frame {
   Image image;                // rgba premultiplied; depth: mm of the first contribution
-  std::vector<float> value;   // MIP: maximum per pixel (NaN: missed); iso: isovalue at hits
+  std::vector<float> value;   // MIP: maximum per pixel (NaN: missed, or none that shows); iso: isovalue at hits
   std::vector<float> leafCounts, samples;  // per pixel, with RaycastOptions::stats
   FrameStats stats;
 };

@@ -83,6 +83,11 @@ std::array<Vec3, 8> nodeBoxCorners(const volume::OctreeLayout& layout, const Mat
 std::vector<volume::NodeKey> nodesInFrustum(const volume::StoreReader& store, const Camera& camera,
                                             int level);
 
+// MIP: the value from which the transfer function's opacity may be non-zero (+inf: never,
+// -inf: everywhere; the TF is clamped at its ends). A maximum below it shows black: nodes whose
+// range stays below it are empty to the working set, and the raycaster skips cells below it.
+double mipVisibleFrom(const transfer::TransferFunction& tf);
+
 struct WorkingSetOptions {
   RaycastMode mode = RaycastMode::Dvr;
   double lodPixels = 1.0;  // target projected voxel size; 0: finest level everywhere

@@ -36,9 +36,6 @@ std::filesystem::path defaultCacheDir();
 // The cache key of a source (hex): see above. Reads three slices.
 std::string storeCacheKey(VolumeSource& source);
 
-// Whether `path` is an octree store (by its magic bytes).
-bool isStoreFile(const std::filesystem::path& path);
-
 // The source's slices held in memory while the import runs, downsampled by a power of two
 // (the same box filter as the octree's levels) so that it fits `budgetBytes`.
 class PreviewVolume {

@@ -4,6 +4,7 @@
 // decompressed on request. Safe to call from many threads at once.
 
 #include <cstdint>
+#include <filesystem>
 #include <memory>
 #include <string>
 #include <vector>
@@ -13,6 +14,10 @@
 #include "octoray/volume/store_format.h"
 
 namespace octoray::volume {
+
+// Whether `path` is a regular file that starts with the store's magic bytes (what decides
+// between opening a store and importing a volume; StoreReader verifies the rest).
+bool isStoreFile(const std::filesystem::path& path);
 
 // One decompressed brick: (B + 2A)^3 samples, x fastest, as stored (UInt16 or Float32).
 struct Brick {
