@@ -557,7 +557,8 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
   if (options.mode == RaycastMode::Mip) {
     // The visibility floor in the pool's units (none where stored values decrease).
     const double big = std::numeric_limits<float>::max();
-    const double floor = s > 0 ? (mipVisibleFrom(tf) - (floatPool ? 0.0 : im.store.header().valueOffset)) / s : -big;
+    const double offset = floatPool ? 0.0 : im.store.header().valueOffset;
+    const double floor = s > 0 ? (mipVisibleFrom(tf) - offset) / s : -big;
     glUniform1f(prog.uniform("uMipFloor"), static_cast<float>(std::clamp(floor, -big, big)));
   }
   const auto [lo, hi] = im.tfRange();

@@ -144,7 +144,9 @@ class Projector {
 }  // namespace
 
 double mipVisibleFrom(const transfer::TransferFunction& tf) {
-  if (tf.opacity.empty() || tf.opacity.front().alpha > 0) return -std::numeric_limits<double>::infinity();
+  if (tf.opacity.empty() || tf.opacity.front().alpha > 0) {
+    return -std::numeric_limits<double>::infinity();
+  }
   for (std::size_t i = 0; i < tf.opacity.size(); ++i) {
     // Opacity rises from the previous point's value on.
     if (tf.opacity[i].alpha > 0) return i > 0 ? tf.opacity[i - 1].value : tf.opacity[i].value;

@@ -318,8 +318,8 @@ TEST_F(RaycasterTest, SampledMipNeverExceedsTheExactMaximum) {
   int64_t lower = 0, hits = 0, unsampled = 0;
   for (std::size_t i = 0; i < exact.value.size(); ++i) {
     if (std::isnan(exact.value[i])) {  // no maximum found, or none that shows
-      EXPECT_TRUE(std::isnan(sampled.value[i]) || !(reference::classify(tf, sampled.value[i]).alpha > 0))
-          << "pixel " << i;
+      const float s = sampled.value[i];
+      EXPECT_TRUE(std::isnan(s) || !(reference::classify(tf, s).alpha > 0)) << "pixel " << i;
       continue;
     }
     if (std::isnan(sampled.value[i])) {  // the chord's part in data leaves holds no sample

@@ -388,7 +388,8 @@ TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
   refused(R"({"name": "a", "window": 80, "level": 40, "source": 6})", "presets[0]: source must be a string");
   refused(R"({"name": "a", "window": 80, "level": 40, "key": "1"})", "key must be an integer");
   refused(R"({"name": "a", "window": 80, "level": 40, "key": 1.5})", "key must be an integer");
-  refused(R"({"name": "a", "window": 80, "level": 40, "key": 12})", "key must be an integer 1-9 (or 0 for none)");
+  refused(R"({"name": "a", "window": 80, "level": 40, "key": 12})",
+          "key must be an integer 1-9 (or 0 for none)");
   refused(R"({"name": "a", "window": 80, "level": 40})", "expected {", "7");
 }
 

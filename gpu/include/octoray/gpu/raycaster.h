@@ -135,7 +135,7 @@ struct FrameStats {
 
 struct Frame {
   Image image;                // rgba premultiplied; depth: mm of the first contribution
-  std::vector<float> value;   // MIP: maximum per pixel (NaN: missed, or none that shows); iso: isovalue at hits
+  std::vector<float> value;   // MIP: maximum (NaN: missed, or none that shows); iso: isovalue at hits
   std::vector<float> leafCounts, samples;  // per pixel, with RaycastOptions::stats
   FrameStats stats;
 };
