@@ -199,6 +199,7 @@ void checkPixelLength(const gdcm::File& file, const FileHeader& h, int frameCoun
 }  // namespace
 
 PatientIdentity readPatientIdentity(const std::string& path) {
+  detail::vetWithGdcm(path);
   gdcm::Reader reader;
   reader.SetFileName(path.c_str());
   if (!reader.ReadUpToTag(kPixelData, std::set<gdcm::Tag>{kPixelData})) {
@@ -373,10 +374,11 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& root,
 }
 
 // Collects the files a DICOMDIR lists, following nested directory files (Philips DIRFILEs);
-// records a warning for every listed file that does not exist.
-void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::path>& visited,
+// records a warning for every listed file that does not exist. False (with a warning) when the
+// DICOMDIR itself cannot be parsed.
+bool readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::path>& visited,
                    std::set<std::string>& listed, DicomScan& scan) {
-  if (!visited.insert(fs::weakly_canonical(dirFile)).second) return;
+  if (!visited.insert(fs::weakly_canonical(dirFile)).second) return true;
   // GDCM asserts (aborting the process) on some malformed files: vetted in a child first, like
   // every image header (found by fuzz_dicomdir).
   try {
@@ -384,14 +386,14 @@ void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::p
   } catch (const Error& e) {
     scan.warnings.push_back(dirFile.string() + ": DICOMDIR could not be parsed (" + e.reason() +
                             "); files are found by searching the folder instead");
-    return;
+    return false;
   }
   gdcm::Reader reader;
   reader.SetFileName(dirFile.c_str());
   if (!reader.Read()) {
     scan.warnings.push_back(dirFile.string() + ": DICOMDIR could not be parsed; files are found by "
                             "searching the folder instead");
-    return;
+    return false;
   }
   for (const gdcm::DataSet& record :
        detail::sequenceItems(reader.GetFile().GetDataSet(), kDirectoryRecords)) {
@@ -441,6 +443,7 @@ void readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::p
       listed.insert(fs::weakly_canonical(*file).string());
     }
   }
+  return true;
 }
 
 bool isDicomDirName(const fs::path& p) { return lowercase(p.filename().string()) == "dicomdir"; }
@@ -460,10 +463,10 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
   std::vector<std::string> files;
   std::set<std::string> listed;
   std::set<fs::path> visited;
-  bool fromDirectory = false;
-  if (fs::is_directory(path, ec)) {
-    fs::recursive_directory_iterator it(path, fs::directory_options::skip_permission_denied, ec);
-    if (ec) throw Error(path.string(), "folder cannot be read: " + ec.message());
+  // Every file below `folder`; DICOMDIRs met on the way are read for the files they list.
+  auto searchFolder = [&](const fs::path& folder) {
+    fs::recursive_directory_iterator it(folder, fs::directory_options::skip_permission_denied, ec);
+    if (ec) throw Error(folder.string(), "folder cannot be read: " + ec.message());
     for (; it != fs::recursive_directory_iterator(); it.increment(ec)) {
       if (ec) break;
       // Hidden files (.DS_Store, a retrieval's temporaries and its completion record) are
@@ -472,19 +475,22 @@ DicomScan scanDicom(const fs::path& path, const ScanOptions& options) {
       if (!it->is_regular_file(ec)) continue;
       if (isDicomDirName(it->path())) {
         readDirectory(it->path(), it->path().parent_path(), visited, listed, scan);
-        fromDirectory = true;
       }
       files.push_back(it->path().string());
     }
     std::sort(files.begin(), files.end());
+  };
+  if (fs::is_directory(path, ec)) {
+    searchFolder(path);
   } else if (isDicomDirName(path)) {
-    readDirectory(path, path.parent_path(), visited, listed, scan);
-    fromDirectory = true;
-    files.assign(listed.begin(), listed.end());
+    if (readDirectory(path, path.parent_path(), visited, listed, scan)) {
+      files.assign(listed.begin(), listed.end());
+    } else {
+      searchFolder(path.has_parent_path() ? path.parent_path() : fs::path("."));  // as warned
+    }
   } else {
     files.push_back(path.string());
   }
-  (void)fromDirectory;
   readSeries(files, options, scan);
   return scan;
 }

@@ -21,11 +21,17 @@ std::vector<std::string> stringValues(const gdcm::DataSet& ds, const gdcm::Tag& 
 // Decimal/integer string values (DS, IS) parsed to doubles; nullopt if absent or malformed.
 std::optional<std::vector<double>> numberValues(const gdcm::DataSet& ds, const gdcm::Tag& tag);
 std::optional<double> numberValue(const gdcm::DataSet& ds, const gdcm::Tag& tag);
-// Parses `path` with GDCM in a forked child first: Debian's GDCM is built with assertions,
-// and some truncated or malformed files make it abort() the whole process. Throws
-// octoray::Error naming the file when the parser dies on it; returns normally otherwise
-// (including when GDCM merely reports a parse failure, which the caller then sees itself).
+// Vets `path` before GDCM parses it in this process: its declared lengths are checked
+// (checkDeclaredLengths), then GDCM parses it in a child process, since Debian's GDCM is built
+// with assertions and some truncated or malformed files make it abort() the whole process.
+// Throws octoray::Error naming the file when a length runs past its end or the parser dies on
+// it; returns normally otherwise (including when GDCM merely reports a parse failure, which
+// the caller then sees itself).
 void vetWithGdcm(const std::string& path);
+// Walks the file's data elements (seeking over their values) and throws octoray::Error naming
+// the file and the element when a defined length runs past the end of the file: GDCM would
+// allocate and clear a buffer of that size before finding the file too short.
+void checkDeclaredLengths(const std::string& path);
 
 }  // namespace octoray::dicom::detail
 namespace octoray::dicom { struct DecodedImage; }

@@ -175,6 +175,7 @@ std::vector<std::unique_ptr<Vetter>>& pool() {
 }  // namespace
 
 void vetWithGdcm(const std::string& path) {
+  checkDeclaredLengths(path);
   std::unique_ptr<Vetter> vetter;
   {
     std::lock_guard lock(gPoolMutex);

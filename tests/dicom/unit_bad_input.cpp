@@ -3,6 +3,7 @@
 // a deadline, so a regression to a hang fails instead of stalling the suite.
 
 #include <gdcmReader.h>
+#include <gdcmSequenceOfItems.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
 
@@ -16,10 +17,13 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <future>
 #include <thread>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "format_test_helpers.h"
 #include "octoray/core/error.h"
@@ -443,6 +447,83 @@ TEST(BadInputDicom, HugeSpacingOrPositionIsRefusedWhereTheStackIsFormed) {
     expectCleanError([&] { dicom::resolveStack(scan.series[0]); },
                      {scan.series[0].frames.front().path, "the geometry is not usable"}, "resolveStack");
   }
+}
+
+// A value length running past the end of the file is refused by name before GDCM sees the
+// file: GDCM allocates and clears a buffer of the declared size first (1 GiB here, in a
+// sequence item of a 1 KiB-header file; found by fuzz_dicomdir as a DICOMDIR). Without the
+// check the file is skipped as unparsable after that allocation, with no length named.
+TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
+  const auto dir = test::freshTempDir("bad_dicom_length");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 6;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path damaged = written.slices()[2].path;
+  const std::string marker = "OCTORAYLENGTHMRK";  // 16 bytes, an OB value in an item
+  {
+    gdcm::Reader reader;
+    reader.SetFileName(damaged.c_str());
+    ASSERT_TRUE(reader.Read());
+    gdcm::DataSet item;
+    gdcm::DataElement creator(gdcm::Tag(0x0029, 0x0010));
+    creator.SetVR(gdcm::VR::LO);
+    creator.SetByteValue("OCTORAY ", 8);
+    item.Insert(creator);
+    gdcm::DataElement value(gdcm::Tag(0x0029, 0x1010));
+    value.SetVR(gdcm::VR::OB);
+    value.SetByteValue(marker.data(), static_cast<uint32_t>(marker.size()));
+    item.Insert(value);
+    gdcm::Item wrapped;
+    wrapped.SetNestedDataSet(item);
+    gdcm::SmartPointer<gdcm::SequenceOfItems> sequence = new gdcm::SequenceOfItems;
+    sequence->AddItem(wrapped);
+    gdcm::DataElement referenced(gdcm::Tag(0x0008, 0x1140));
+    referenced.SetVR(gdcm::VR::SQ);
+    referenced.SetValue(*sequence);
+    reader.GetFile().GetDataSet().Replace(referenced);
+    gdcm::Writer writer;
+    writer.SetFileName(damaged.c_str());
+    writer.SetFile(reader.GetFile());
+    ASSERT_TRUE(writer.Write());
+  }
+  // The four bytes before the value are its length, in explicit and implicit VR alike.
+  std::string bytes;
+  {
+    std::ifstream in(damaged, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const std::size_t at = bytes.find(marker);
+  ASSERT_NE(at, std::string::npos);
+  ASSERT_GE(at, 4u);
+  const uint32_t length = uint32_t(1) << 30;
+  std::memcpy(bytes.data() + at - 4, &length, 4);  // little endian, as the series is written
+  writeFile(damaged, bytes);
+
+  const std::string reason = "element (0029,1010) declares 1073741824 bytes but the file holds";
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+  ASSERT_EQ(scan.skipped.size(), 1u);
+  EXPECT_EQ(scan.skipped[0].path, damaged.string());
+  EXPECT_NE(scan.skipped[0].reason.find(reason), std::string::npos) << scan.skipped[0].reason;
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+  expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); }, {damaged.string(), reason},
+                   "decodeDicomFile");
+
+  // The same bytes as a DICOMDIR: its records cannot be read, the folder is searched instead.
+  const auto media = test::freshTempDir("bad_dicomdir_length");
+  fs::copy_file(damaged, media / "DICOMDIR");
+  fs::copy_file(written.slices()[0].path, media / "IMG1");
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
+  const auto& warnings = scan.warnings;
+  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
+    return w.find("DICOMDIR could not be parsed") != std::string::npos &&
+           w.find(reason) != std::string::npos;
+  });
+  EXPECT_TRUE(named) << fmt::format("{}", fmt::join(warnings, "\n"));
+  ASSERT_EQ(scan.series.size(), 1u);  // IMG1, found by the search
+  EXPECT_EQ(scan.series[0].frames.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames[0].path, (media / "IMG1").string());
 }
 
 // One image whose orientation differs is split off into another part of the series; the

@@ -1,0 +1,211 @@
+// Declared value lengths against the file. GDCM sizes a value's buffer from the length its
+// element declares and clears it before reading: a 1 KiB file declaring a 1 GiB value inside
+// a sequence item made it allocate and clear 1 GiB, twice (found by fuzz_dicomdir). So the
+// elements are walked first, seeking over every value, and a defined length that runs past
+// the end of the file refuses the file by name before GDCM sees it.
+//
+// The walk follows PS3.5 §7: explicit VR (2- or 4-byte lengths by VR), implicit VR, items and
+// delimiters, sequences of defined or undefined length, encapsulated pixel data (whose items
+// are fragments to skip), the file meta group in explicit little endian and a big-endian body.
+// It only ever refuses a length that cannot fit in the file; what it cannot follow (a
+// deflated body) it leaves to GDCM.
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <string_view>
+
+#include <fmt/format.h>
+
+#include "gdcm_support.h"
+#include "octoray/core/error.h"
+
+namespace octoray::dicom::detail {
+namespace {
+
+constexpr uint32_t kUndefinedLength = 0xffffffffu;
+
+bool isVr(char a, char b) {
+  static constexpr std::array<std::string_view, 34> kVrs = {
+      "AE", "AS", "AT", "CS", "DA", "DS", "DT", "FD", "FL", "IS", "LO", "LT",
+      "OB", "OD", "OF", "OL", "OV", "OW", "PN", "SH", "SL", "SQ", "SS", "ST",
+      "SV", "TM", "UC", "UI", "UL", "UN", "UR", "US", "UT", "UV"};
+  for (const auto vr : kVrs) {
+    if (vr[0] == a && vr[1] == b) return true;
+  }
+  return false;
+}
+
+// Explicit VRs whose length field has 4 bytes (after 2 reserved ones).
+bool hasLongLength(char a, char b) {
+  static constexpr std::array<std::string_view, 13> kLong = {
+      "OB", "OD", "OF", "OL", "OV", "OW", "SQ", "SV", "UC", "UN", "UR", "UT", "UV"};
+  for (const auto vr : kLong) {
+    if (vr[0] == a && vr[1] == b) return true;
+  }
+  return false;
+}
+
+uint16_t u16(const unsigned char* p, bool big) {
+  return big ? static_cast<uint16_t>(p[0] << 8 | p[1]) : static_cast<uint16_t>(p[1] << 8 | p[0]);
+}
+
+uint32_t u32(const unsigned char* p, bool big) {
+  return big ? uint32_t(p[0]) << 24 | uint32_t(p[1]) << 16 | uint32_t(p[2]) << 8 | p[3]
+             : uint32_t(p[3]) << 24 | uint32_t(p[2]) << 16 | uint32_t(p[1]) << 8 | p[0];
+}
+
+class File {
+ public:
+  explicit File(const std::string& path)
+      : path_(path), fd_(::open(path.c_str(), O_RDONLY | O_CLOEXEC)) {
+    if (fd_ < 0) throw Error(path, std::string("cannot be opened: ") + std::strerror(errno));
+    const off_t end = ::lseek(fd_, 0, SEEK_END);
+    if (end < 0) {
+      ::close(fd_);
+      throw Error(path, std::string("cannot be read: ") + std::strerror(errno));
+    }
+    size_ = static_cast<uint64_t>(end);
+  }
+  ~File() { ::close(fd_); }
+  File(const File&) = delete;
+  File& operator=(const File&) = delete;
+
+  uint64_t size() const { return size_; }
+  // Reads n bytes at `at`; false where the file ends before.
+  bool read(uint64_t at, unsigned char* out, std::size_t n) const {
+    if (at > size_ || size_ - at < n) return false;
+    std::size_t done = 0;
+    while (done < n) {
+      const ssize_t got = ::pread(fd_, out + done, n - done, static_cast<off_t>(at + done));
+      if (got < 0 && errno == EINTR) continue;
+      if (got < 0) throw Error(path_, std::string("cannot be read: ") + std::strerror(errno));
+      if (got == 0) return false;
+      done += static_cast<std::size_t>(got);
+    }
+    return true;
+  }
+
+ private:
+  std::string path_;
+  int fd_;
+  uint64_t size_ = 0;
+};
+
+std::string tagName(uint16_t group, uint16_t element) {
+  return fmt::format("({:04X},{:04X})", group, element);
+}
+
+[[noreturn]] void refuse(const std::string& path, uint16_t group, uint16_t element,
+                         uint64_t declared, uint64_t remaining) {
+  const std::string what = group == 0x7fe0 && element == 0x0010 ? "pixel data"
+                           : group == 0xfffe               ? "item " + tagName(group, element)
+                                                           : "element " + tagName(group, element);
+  throw Error(path, fmt::format("{} declares {} bytes but the file holds {} after it (file "
+                                "truncated or corrupt)",
+                                what, declared, remaining));
+}
+
+}  // namespace
+
+void checkDeclaredLengths(const std::string& path) {
+  const File file(path);
+  const uint64_t size = file.size();
+  unsigned char b[12];
+
+  // A Part 10 file: 128-byte preamble, "DICM", then the meta group in explicit little endian.
+  uint64_t pos = 0;
+  if (file.read(128, b, 4) && std::memcmp(b, "DICM", 4) == 0) {
+    pos = 132;
+  } else {
+    // A bare data set starts with a group length, the meta group or the identifying group,
+    // in either byte order. Anything else is not DICOM as far as this walk can tell: GDCM
+    // says so itself, and a length read from text would name a meaningless element.
+    if (!file.read(0, b, 2)) return;
+    const uint16_t little = u16(b, false), big = u16(b, true);
+    const auto plausible = [](uint16_t group) { return group == 0 || group == 2 || group == 8; };
+    if (!plausible(little) && !plausible(big)) return;
+  }
+
+  // The body's encoding: from the transfer syntax where the meta group names one.
+  std::string syntax;
+  bool big = false;
+  bool bodyStarted = false;
+  bool implicitOnly = false;  // implicit VR little endian: lengths never follow a VR code
+  bool inFragments = false;   // inside encapsulated pixel data, items are fragments
+  while (pos < size && size - pos >= 8) {
+    if (!file.read(pos, b, 8)) break;
+    const bool meta = u16(b, false) == 0x0002;
+    if (!meta && !bodyStarted) {
+      bodyStarted = true;
+      if (syntax == "1.2.840.10008.1.2.1.99") return;  // deflated: GDCM inflates the body
+      big = syntax == "1.2.840.10008.1.2.2";
+      if (syntax.empty()) {
+        // No meta group: a big-endian body shows in the first tag's group.
+        big = u16(b, false) > 0x00ff && u16(b, true) <= 0x00ff;
+      }
+      // A body labelled implicit whose first element carries a VR code is explicit in fact
+      // (GDCM reads such files so); otherwise implicit means implicit throughout.
+      implicitOnly = syntax == "1.2.840.10008.1.2" && !isVr(char(b[4]), char(b[5]));
+    }
+    const bool bigHere = big && !meta;
+    const uint16_t group = u16(b, bigHere), element = u16(b + 2, bigHere);
+    const uint64_t remainingAfter8 = size - pos - 8;
+
+    if (group == 0xfffe) {  // item, item delimiter, sequence delimiter: tag and 4-byte length
+      const uint32_t length = u32(b + 4, bigHere);
+      pos += 8;
+      if (element == 0xe0dd) inFragments = false;
+      if (element != 0xe000 || length == kUndefinedLength) continue;
+      if (length > remainingAfter8) refuse(path, group, element, length, remainingAfter8);
+      if (inFragments) pos += length;  // a fragment: raw bytes; an item's elements follow
+      continue;
+    }
+
+    uint64_t header = 8;
+    uint32_t length = 0;
+    const bool explicitVr = !implicitOnly && isVr(char(b[4]), char(b[5]));
+    bool sequence = false, unknown = false;
+    if (explicitVr) {
+      if (hasLongLength(char(b[4]), char(b[5]))) {
+        if (!file.read(pos + 8, b + 8, 4)) break;
+        header = 12;
+        length = u32(b + 8, bigHere);
+      } else {
+        length = u16(b + 6, bigHere);
+      }
+      sequence = b[4] == 'S' && b[5] == 'Q';
+      unknown = b[4] == 'U' && b[5] == 'N';
+    } else {
+      length = u32(b + 4, bigHere);
+      unknown = true;  // no VR: a sequence shows by its first item
+    }
+    if (meta && element == 0x0010 && length <= 64 && header + length <= size - pos) {
+      std::string value(length, '\0');
+      if (file.read(pos + header, reinterpret_cast<unsigned char*>(value.data()), length)) {
+        while (!value.empty() && (value.back() == '\0' || value.back() == ' ')) value.pop_back();
+        syntax = value;
+      }
+    }
+    pos += header;
+    if (length == kUndefinedLength) {
+      // A sequence (or UN holding one) or encapsulated pixel data: its items follow.
+      if (group == 0x7fe0 && element == 0x0010) inFragments = true;
+      continue;
+    }
+    const uint64_t remaining = size - pos;
+    if (length > remaining) refuse(path, group, element, length, remaining);
+    if (unknown && length >= 8 && file.read(pos, b, 4) && u16(b, bigHere) == 0xfffe &&
+        u16(b + 2, bigHere) == 0xe000) {
+      sequence = true;
+    }
+    if (!sequence) pos += length;  // a sequence's items are walked in place
+  }
+}
+
+}  // namespace octoray::dicom::detail
