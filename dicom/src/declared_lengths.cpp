@@ -11,6 +11,7 @@
 // deflated body) it leaves to GDCM.
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <array>
@@ -19,6 +20,7 @@
 #include <cstring>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -63,8 +65,13 @@ uint32_t u32(const unsigned char* p, bool big) {
 class File {
  public:
   explicit File(const std::string& path)
-      : path_(path), fd_(::open(path.c_str(), O_RDONLY | O_CLOEXEC)) {
+      : path_(path), fd_(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK)) {
     if (fd_ < 0) throw Error(path, std::string("cannot be opened: ") + std::strerror(errno));
+    struct stat status {};
+    if (::fstat(fd_, &status) != 0 || !S_ISREG(status.st_mode)) {
+      ::close(fd_);
+      throw Error(path, "not a regular file");  // a FIFO or device would block or never end
+    }
     const off_t end = ::lseek(fd_, 0, SEEK_END);
     if (end < 0) {
       ::close(fd_);
@@ -136,31 +143,51 @@ void checkDeclaredLengths(const std::string& path) {
   std::string syntax;
   bool big = false;
   bool bodyStarted = false;
-  bool implicitOnly = false;  // implicit VR little endian: lengths never follow a VR code
-  bool inFragments = false;   // inside encapsulated pixel data, items are fragments
+  bool implicitBody = false;  // implicit VR: lengths never follow a VR code
+  // The sequences and encapsulated pixel data the walk is inside: where each ends (its
+  // delimiter, or a position), whether its content is implicit VR (an explicit UN of undefined
+  // length holds implicit content, CP-246) and whether its items are fragments.
+  struct Context {
+    uint64_t end;
+    bool implicit;
+    bool fragments;
+  };
+  constexpr uint64_t kToDelimiter = ~uint64_t(0);
+  constexpr std::size_t kMaxDepth = 1024;  // deeper nesting is walked in the innermost context
+  std::vector<Context> open;
   while (pos < size && size - pos >= 8) {
+    while (!open.empty() && open.back().end != kToDelimiter && pos >= open.back().end) {
+      open.pop_back();
+    }
     if (!file.read(pos, b, 8)) break;
-    const bool meta = u16(b, false) == 0x0002;
+    const bool meta = !bodyStarted && u16(b, false) == 0x0002;
     if (!meta && !bodyStarted) {
       bodyStarted = true;
-      if (syntax == "1.2.840.10008.1.2.1.99") return;  // deflated: GDCM inflates the body
+      // Deflated bodies (GDCM inflates the plain one; the JPIP ones it does not read).
+      for (const char* deflated :
+           {"1.2.840.10008.1.2.1.99", "1.2.840.10008.1.2.4.95", "1.2.840.10008.1.2.4.205"}) {
+        if (syntax == deflated) return;
+      }
       big = syntax == "1.2.840.10008.1.2.2";
       if (syntax.empty()) {
         // No meta group: a big-endian body shows in the first tag's group.
         big = u16(b, false) > 0x00ff && u16(b, true) <= 0x00ff;
       }
-      // A body labelled implicit whose first element carries a VR code is explicit in fact
-      // (GDCM reads such files so); otherwise implicit means implicit throughout.
-      implicitOnly = syntax == "1.2.840.10008.1.2" && !isVr(char(b[4]), char(b[5]));
+      // Implicit where labelled so, or where nothing is labelled, unless the first element
+      // carries a VR code: then it is explicit in fact (GDCM reads such files so).
+      implicitBody = (syntax == "1.2.840.10008.1.2" || syntax.empty()) &&
+                     !isVr(char(b[4]), char(b[5]));
     }
     const bool bigHere = big && !meta;
+    const bool implicitHere = !meta && (open.empty() ? implicitBody : open.back().implicit);
+    const bool inFragments = !open.empty() && open.back().fragments;
     const uint16_t group = u16(b, bigHere), element = u16(b + 2, bigHere);
     const uint64_t remainingAfter8 = size - pos - 8;
 
     if (group == 0xfffe) {  // item, item delimiter, sequence delimiter: tag and 4-byte length
       const uint32_t length = u32(b + 4, bigHere);
       pos += 8;
-      if (element == 0xe0dd) inFragments = false;
+      if (element == 0xe0dd && !open.empty() && open.back().end == kToDelimiter) open.pop_back();
       if (element != 0xe000 || length == kUndefinedLength) continue;
       if (length > remainingAfter8) refuse(path, group, element, length, remainingAfter8);
       if (inFragments) pos += length;  // a fragment: raw bytes; an item's elements follow
@@ -169,7 +196,7 @@ void checkDeclaredLengths(const std::string& path) {
 
     uint64_t header = 8;
     uint32_t length = 0;
-    const bool explicitVr = !implicitOnly && isVr(char(b[4]), char(b[5]));
+    const bool explicitVr = !implicitHere && isVr(char(b[4]), char(b[5]));
     bool sequence = false, unknown = false;
     if (explicitVr) {
       if (hasLongLength(char(b[4]), char(b[5]))) {
@@ -193,18 +220,28 @@ void checkDeclaredLengths(const std::string& path) {
       }
     }
     pos += header;
+    const bool pixelData = group == 0x7fe0 && element == 0x0010;
+    // Content of an undefined-length UN is implicit VR; of any other sequence, as around it.
+    const bool contentImplicit = implicitHere || (explicitVr && unknown);
     if (length == kUndefinedLength) {
       // A sequence (or UN holding one) or encapsulated pixel data: its items follow.
-      if (group == 0x7fe0 && element == 0x0010) inFragments = true;
+      if (open.size() < kMaxDepth) open.push_back({kToDelimiter, contentImplicit, pixelData});
       continue;
     }
     const uint64_t remaining = size - pos;
     if (length > remaining) refuse(path, group, element, length, remaining);
-    if (unknown && length >= 8 && file.read(pos, b, 4) && u16(b, bigHere) == 0xfffe &&
-        u16(b + 2, bigHere) == 0xe000) {
-      sequence = true;
+    // A value without a VR saying what it is holds a sequence where it starts with an item
+    // whose length fits in the value (GDCM never reads pixel data so).
+    if (unknown && !pixelData && length >= 8 && file.read(pos, b, 8) &&
+        u16(b, bigHere) == 0xfffe && u16(b + 2, bigHere) == 0xe000) {
+      const uint32_t first = u32(b + 4, bigHere);
+      sequence = first == kUndefinedLength || first <= length - 8;
     }
-    if (!sequence) pos += length;  // a sequence's items are walked in place
+    if (sequence) {  // its items are walked in place, up to its end
+      if (open.size() < kMaxDepth) open.push_back({pos + length, contentImplicit, false});
+    } else {
+      pos += length;
+    }
   }
 }
 

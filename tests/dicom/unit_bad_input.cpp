@@ -526,6 +526,70 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
   EXPECT_EQ(scan.series[0].frames[0].path, (media / "IMG1").string());
 }
 
+// Valid files the length walk must follow without refusing them (review of the walk): an
+// explicit-VR file whose private UN of undefined length holds implicit-VR content (CP-246),
+// with an implicit length whose low bytes spell a VR code ("DA"), read as explicit it would
+// run into a value declaring 2 GiB; and an implicit-VR file whose pixel data starts with the
+// bytes of an item tag and a 2 GiB item length (pixel data is never a sequence).
+TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) {
+  const auto readBytes = [](const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const auto le16 = [](uint16_t v) { return std::string{char(v & 0xff), char(v >> 8)}; };
+  const auto le32 = [&](uint32_t v) {
+    return le16(uint16_t(v & 0xffff)) + le16(uint16_t(v >> 16));
+  };
+  const auto tag = [&](uint16_t g, uint16_t e) { return le16(g) + le16(e); };
+  {
+    const auto dir = test::freshTempDir("lengths_un_implicit");
+    dicom::SyntheticSeriesSpec spec;
+    spec.sliceCount = 6;
+    const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+    const fs::path file = written.slices()[2].path;
+    std::string bytes = readBytes(file);
+    std::string value(16708, '\0');  // 0x4144: "DA" in its two low bytes
+    const std::string trap = std::string("\xff\xff\xff\x7f", 4) + "OB" + std::string(2, '\0') +
+                             le32(0x7fffffff);
+    value.replace(0, trap.size(), trap);
+    bytes += tag(0x7fe1, 0x0010) + "LO" + le16(8) + "OCTORAY ";
+    bytes += tag(0x7fe1, 0x1010) + "UN" + std::string(2, '\0') + le32(0xffffffff);
+    bytes += tag(0xfffe, 0xe000) + le32(0xffffffff);
+    bytes += tag(0x0008, 0x0100) + le32(16708) + value;  // implicit VR
+    bytes += tag(0xfffe, 0xe00d) + le32(0) + tag(0xfffe, 0xe0dd) + le32(0);
+    writeFile(file, bytes);
+    dicom::DicomScan scan;
+    EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+    for (const auto& skipped : scan.skipped) {
+      ADD_FAILURE() << skipped.path << ": " << skipped.reason;
+    }
+    ASSERT_EQ(scan.series.size(), 1u);
+    EXPECT_EQ(scan.series[0].frames.size(), 6u);
+    EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile(file.string()); }, "decodeDicomFile"), "");
+  }
+  {
+    const auto dir = test::freshTempDir("lengths_pixels_like_item");
+    dicom::SyntheticSeriesSpec spec;
+    spec.sliceCount = 6;
+    spec.transferSyntax = dicom::SyntheticTransferSyntax::ImplicitVRLittleEndian;
+    const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+    const fs::path file = written.slices()[2].path;
+    std::string bytes = readBytes(file);
+    const std::size_t at = bytes.rfind(tag(0x7fe0, 0x0010));
+    ASSERT_NE(at, std::string::npos);
+    bytes.replace(at + 8, 8, tag(0xfffe, 0xe000) + le32(0x7fffffff));
+    writeFile(file, bytes);
+    dicom::DicomScan scan;
+    EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+    for (const auto& skipped : scan.skipped) {
+      ADD_FAILURE() << skipped.path << ": " << skipped.reason;
+    }
+    ASSERT_EQ(scan.series.size(), 1u);
+    EXPECT_EQ(scan.series[0].frames.size(), 6u);
+    EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile(file.string()); }, "decodeDicomFile"), "");
+  }
+}
+
 // One image whose orientation differs is split off into another part of the series; the
 // volume built from the main part names it.
 TEST(BadInputDicom, ImageSplitOffFromTheSeriesIsNamed) {
