@@ -12,7 +12,7 @@ packages=(
   libgdcm-dev libvtk9-dev libopencv-dev libopenexr-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
   nlohmann-json3-dev libcli11-dev libfmt-dev libexpat1-dev
   # PACS: DICOMweb over libcurl, DIMSE through DCMTK's network library; OpenVDB in and out
-  libcurl4-openssl-dev libdcmtk-dev libopenvdb-dev libboost-iostreams-dev
+  libcurl4-openssl-dev libdcmtk-dev libopenvdb-dev libboost-iostreams-dev liblog4cplus-dev
   # batch: HMAC-SHA256 of patient IDs in output paths
   libssl-dev
   # rendering: GL loader, headless EGL on Mesa (llvmpipe without a GPU), GLFW windows, Xvfb for window tests

@@ -3,14 +3,20 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <filesystem>
 #include <limits>
 #include <new>
+#include <system_error>
+#include <thread>
+#include <vector>
 
 #include <fmt/format.h>
+#include <log4cplus/config.hxx>
 
 #include "octoray/core/error.h"
 
@@ -46,6 +52,47 @@ WorkerThreadsJoinedAtExit::~WorkerThreadsJoinedAtExit() {
   // holds the scheduler; exit then tears the threads down as before.
   (void)tbb::finalize(scheduler_, std::nothrow);
 }
+
+namespace {
+
+// The threads of this process other than the calling one, by kernel thread id.
+std::vector<long> otherThreads() {
+  std::vector<long> ids;
+  std::error_code error;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/task", error)) {
+    const long id = std::strtol(entry.path().filename().c_str(), nullptr, 10);
+    if (id > 0 && id != static_cast<long>(gettid())) ids.push_back(id);
+  }
+  return ids;
+}
+
+// log4cplus (OpenVDB's logging library) starts a pool of four threads when it loads, before
+// main, so they exist in every program linked to OpenVDB, one that only printed --help
+// included, and they are the only threads here while this file's statics are built. The exit
+// handler registered then runs before the handlers registered earlier: the static destructors
+// of log4cplus itself, which would otherwise tear the pool down, and LeakSanitizer's exit-time
+// check, registered when the sanitizer started. deinitialize() stops the pool and closes
+// log4cplus's appenders (nothing of ours logs through it; OpenVDB logs only while it reads or
+// writes a file), but the pool's workers detach themselves on their way out, so the handler
+// then waits for those threads to be gone: a few microseconds, bounded at a quarter of a
+// second should a thread started before main be another library's that does not end.
+const std::vector<long> threadsBeforeMain = otherThreads();
+
+void joinLog4cplusPool() {
+  log4cplus::deinitialize();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(250);
+  for (const long id : threadsBeforeMain) {
+    const std::filesystem::path task = fmt::format("/proc/self/task/{}", id);
+    std::error_code error;
+    while (std::filesystem::exists(task, error) && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+  }
+}
+
+[[maybe_unused]] const int log4cplusPoolJoinedAtExit = std::atexit(joinLog4cplusPool);
+
+}  // namespace
 
 namespace {
 
