@@ -21,8 +21,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <utility>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <vector>
 
 #include "gdcm_support.h"
@@ -58,9 +60,25 @@ bool receiveAll(int fd, void* data, std::size_t bytes) {
   return true;
 }
 
-// In the child: parse as the real readers will (the image model, pixel data fragments
-// included; or the plain data set of a non-image). 0 = parsed, 1 = GDCM reported failure.
+// In the child: parse in every way the real readers will, since GDCM takes different paths
+// through one broken file: the header up to the pixel data and the DICOMDIR probe up to
+// (0008,0005) (ReadUpToTag, whose element reader asserts where a tag ends the file without
+// its VR), then the image model, pixel data fragments included, or the plain data set of a
+// non-image (Read, which reads the same file to its end). 0 = parsed, 1 = GDCM reported
+// failure.
 uint8_t parseInChild(const std::string& path) {
+  const gdcm::Tag pixelData(0x7fe0, 0x0010);
+  const std::pair<gdcm::Tag, std::set<gdcm::Tag>> partialReads[] = {
+      {pixelData, {pixelData}}, {gdcm::Tag(0x0008, 0x0005), {}}};
+  for (const auto& [stop, skipped] : partialReads) {
+    try {
+      gdcm::Reader upTo;
+      upTo.SetFileName(path.c_str());
+      (void)upTo.ReadUpToTag(stop, skipped);
+    } catch (...) {
+      // a failure the parent's reader reports in its turn
+    }
+  }
   try {
     gdcm::ImageReader image;
     image.SetFileName(path.c_str());

@@ -590,6 +590,43 @@ TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) 
   }
 }
 
+// A file whose data set is two empty elements of group 0000, the first with no valid VR and
+// the second cut off after its tag (found by fuzz_dicomdir): GDCM's full read accepts it, its
+// header read (ReadUpToTag) switches to its explicit/implicit element reader and asserts on
+// the missing VR, which aborted the whole process. The vetter now parses the file the ways
+// the scanner does, and the file is skipped by name while the rest of the series loads.
+TEST(BadInputDicom, FileOnlyGdcmsHeaderReadAbortsOnIsSkippedByName) {
+  const auto dir = test::freshTempDir("bad_dicom_header_read_aborts");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 6;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path damaged = written.slices()[3].path;
+  std::string bytes;
+  {
+    std::ifstream in(damaged, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  // Preamble, "DICM", (0002,0000) UL 4 and the meta group it measures; the data set replaced.
+  ASSERT_GE(bytes.size(), 144u);
+  ASSERT_EQ(bytes.substr(128, 4), "DICM");
+  ASSERT_EQ(bytes.substr(132, 6), std::string("\x02\x00\x00\x00UL", 6));
+  uint32_t metaLength = 0;
+  std::memcpy(&metaLength, bytes.data() + 140, 4);
+  ASSERT_LE(144u + metaLength, bytes.size());
+  bytes.resize(144u + metaLength);
+  bytes += std::string(12, '\0') + "O";
+  writeFile(damaged, bytes);
+
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+  ASSERT_EQ(scan.skipped.size(), 1u);
+  EXPECT_EQ(scan.skipped[0].path, damaged.string());
+  EXPECT_NE(scan.skipped[0].reason.find("the GDCM parser aborted on it"), std::string::npos)
+      << scan.skipped[0].reason;
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+}
+
 // One image whose orientation differs is split off into another part of the series; the
 // volume built from the main part names it.
 TEST(BadInputDicom, ImageSplitOffFromTheSeriesIsNamed) {
