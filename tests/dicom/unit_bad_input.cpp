@@ -380,6 +380,32 @@ void rewriteElement(const fs::path& path, const gdcm::Tag& tag, const gdcm::VR& 
   ASSERT_TRUE(writer.Write()) << path;
 }
 
+// Scans `dir` and checks that the scan ends without an error, skips exactly `damaged`, by name,
+// with a reason that contains `reasonPart`, and keeps the rest as one series of `framesLeft`
+// frames. Callers wrap it in ASSERT_NO_FATAL_FAILURE when they go on to use `*scanOut`.
+void expectOnlySkipped(const fs::path& dir, const fs::path& damaged, const std::string& reasonPart,
+                       std::size_t framesLeft, dicom::DicomScan* scanOut = nullptr) {
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+  ASSERT_EQ(scan.skipped.size(), 1u);
+  EXPECT_EQ(scan.skipped[0].path, damaged.string());
+  EXPECT_NE(scan.skipped[0].reason.find(reasonPart), std::string::npos) << scan.skipped[0].reason;
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), framesLeft);
+  if (scanOut) *scanOut = std::move(scan);
+}
+
+// Scans `dir` and checks that no file is skipped and that it holds one series of `frames` frames.
+void expectNothingSkipped(const fs::path& dir, std::size_t frames) {
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
+  for (const auto& skipped : scan.skipped) {
+    ADD_FAILURE() << skipped.path << ": " << skipped.reason;
+  }
+  ASSERT_EQ(scan.series.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames.size(), frames);
+}
+
 TEST(BadInputDicom, NumberOfFramesBeyondThePixelDataIsRefusedBeforeAllocating) {
   const auto dir = test::freshTempDir("bad_dicom_frames");
   dicom::SyntheticSeriesSpec spec;
@@ -389,14 +415,7 @@ TEST(BadInputDicom, NumberOfFramesBeyondThePixelDataIsRefusedBeforeAllocating) {
   // One billion frames of 16x16 int16: half a terabyte the file does not hold.
   rewriteElement(damaged, gdcm::Tag(0x0028, 0x0008), gdcm::VR::IS, "1000000000");
 
-  dicom::DicomScan scan;
-  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
-  ASSERT_EQ(scan.skipped.size(), 1u);
-  EXPECT_EQ(scan.skipped[0].path, damaged.string());
-  EXPECT_NE(scan.skipped[0].reason.find("1000000000 frames"), std::string::npos)
-      << scan.skipped[0].reason;
-  ASSERT_EQ(scan.series.size(), 1u);
-  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+  expectOnlySkipped(dir, damaged, "1000000000 frames", 5);
 
   expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); },
                    {damaged.string(), "1000000000 frames"}, "decodeDicomFile");
@@ -500,13 +519,7 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
   writeFile(damaged, bytes);
 
   const std::string reason = "element (0029,1010) declares 1073741824 bytes but the file holds";
-  dicom::DicomScan scan;
-  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
-  ASSERT_EQ(scan.skipped.size(), 1u);
-  EXPECT_EQ(scan.skipped[0].path, damaged.string());
-  EXPECT_NE(scan.skipped[0].reason.find(reason), std::string::npos) << scan.skipped[0].reason;
-  ASSERT_EQ(scan.series.size(), 1u);
-  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+  expectOnlySkipped(dir, damaged, reason, 5);
   expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); }, {damaged.string(), reason},
                    "decodeDicomFile");
 
@@ -514,6 +527,7 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
   const auto media = test::freshTempDir("bad_dicomdir_length");
   fs::copy_file(damaged, media / "DICOMDIR");
   fs::copy_file(written.slices()[0].path, media / "IMG1");
+  dicom::DicomScan scan;
   EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
   const auto& warnings = scan.warnings;
   const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
@@ -558,13 +572,7 @@ TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) 
     bytes += tag(0x0008, 0x0100) + le32(16708) + value;  // implicit VR
     bytes += tag(0xfffe, 0xe00d) + le32(0) + tag(0xfffe, 0xe0dd) + le32(0);
     writeFile(file, bytes);
-    dicom::DicomScan scan;
-    EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
-    for (const auto& skipped : scan.skipped) {
-      ADD_FAILURE() << skipped.path << ": " << skipped.reason;
-    }
-    ASSERT_EQ(scan.series.size(), 1u);
-    EXPECT_EQ(scan.series[0].frames.size(), 6u);
+    expectNothingSkipped(dir, 6);
     EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile(file.string()); }, "decodeDicomFile"), "");
   }
   {
@@ -579,13 +587,7 @@ TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) 
     ASSERT_NE(at, std::string::npos);
     bytes.replace(at + 8, 8, tag(0xfffe, 0xe000) + le32(0x7fffffff));
     writeFile(file, bytes);
-    dicom::DicomScan scan;
-    EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
-    for (const auto& skipped : scan.skipped) {
-      ADD_FAILURE() << skipped.path << ": " << skipped.reason;
-    }
-    ASSERT_EQ(scan.series.size(), 1u);
-    EXPECT_EQ(scan.series[0].frames.size(), 6u);
+    expectNothingSkipped(dir, 6);
     EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile(file.string()); }, "decodeDicomFile"), "");
   }
 }
@@ -617,14 +619,7 @@ TEST(BadInputDicom, FileOnlyGdcmsHeaderReadAbortsOnIsSkippedByName) {
   bytes += std::string(12, '\0') + "O";
   writeFile(damaged, bytes);
 
-  dicom::DicomScan scan;
-  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(dir); }, "scanDicom"), "");
-  ASSERT_EQ(scan.skipped.size(), 1u);
-  EXPECT_EQ(scan.skipped[0].path, damaged.string());
-  EXPECT_NE(scan.skipped[0].reason.find("the GDCM parser aborted on it"), std::string::npos)
-      << scan.skipped[0].reason;
-  ASSERT_EQ(scan.series.size(), 1u);
-  EXPECT_EQ(scan.series[0].frames.size(), 5u);
+  expectOnlySkipped(dir, damaged, "the GDCM parser aborted on it", 5);
 }
 
 // One image whose orientation differs is split off into another part of the series; the
@@ -661,11 +656,8 @@ TEST(BadInputDicom, UnusableRescaleRefusesTheFileByName) {
     const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
     const fs::path damaged = written.slices()[2].path;
     rewriteElement(damaged, tag, gdcm::VR::DS, value);
-    const dicom::DicomScan scan = dicom::scanDicom(dir);
-    ASSERT_EQ(scan.skipped.size(), 1u);
-    EXPECT_EQ(scan.skipped[0].path, damaged.string());
-    EXPECT_NE(scan.skipped[0].reason.find(mention), std::string::npos) << scan.skipped[0].reason;
-    ASSERT_EQ(scan.series.size(), 1u);
+    dicom::DicomScan scan;
+    ASSERT_NO_FATAL_FAILURE(expectOnlySkipped(dir, damaged, mention, 5, &scan));
     const auto source = dicom::openDicomSeries(scan.series[0], {});
     const auto& warnings = source->info().warnings;
     EXPECT_TRUE(std::any_of(warnings.begin(), warnings.end(),
