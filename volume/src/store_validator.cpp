@@ -46,12 +46,6 @@ const CheckResult* ValidationReport::find(std::string_view name) const {
   return nullptr;
 }
 
-bool hasStoreMagic(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char magic[sizeof kStoreMagic] = {};
-  return in.read(magic, sizeof magic) && std::memcmp(magic, kStoreMagic, sizeof magic) == 0;
-}
-
 namespace {
 
 // One check's results, gathered from many threads. Keeps the failures with the lowest node

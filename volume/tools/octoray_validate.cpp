@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "cli_support.h"
+#include "octoray/volume/store_reader.h"
 #include "octoray/volume/store_validator.h"
 
 namespace {
@@ -24,7 +25,7 @@ using octoray::volume::ValidationReport;
 bool isDicomInput(const fs::path& path) {
   std::error_code ec;
   if (fs::is_directory(path, ec)) return true;
-  if (octoray::volume::hasStoreMagic(path.string())) return false;
+  if (octoray::volume::isStoreFile(path)) return false;
   std::string name = path.filename().string();
   std::transform(name.begin(), name.end(), name.begin(),
                  [](unsigned char c) { return std::toupper(c); });

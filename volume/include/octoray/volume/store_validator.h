@@ -84,7 +84,4 @@ ValidationReport validateStore(const std::string& path, const StoreValidationOpt
 ValidationReport validateDicomFolder(const std::string& path,
                                      const ValidationProgress& progress = {});
 
-// True when the file at `path` starts with the store magic.
-bool hasStoreMagic(const std::string& path);
-
 }  // namespace octoray::volume
