@@ -250,7 +250,7 @@ RayResult marchDvr(const Frame& f, const Vec3& o, const Vec3& d, const Vec3& dir
 // its argmin (exact for a symmetric tent, the shape of the trilinear interpolant along an
 // axis), or with L' where that bound stays above zero. A probe replaces one of the three; at
 // most kIsoDipProbes. Returns the first probe with g <= 0 (its excess in fHit), or NaN. The
-// GPU's isoDip (raycast.frag.glsl) follows the same rule.
+// GPU's isoDip (raycast_iso.glsl) follows the same rule.
 constexpr int kIsoDipProbes = 4;
 constexpr double kIsoDipSlopeSafety = 2.0;
 

@@ -13,6 +13,12 @@
 // the image pyramid: see "Adaptive sampling in the image plane" below), STATS (per-pixel counters), FEEDBACK (per-leaf ray counts), PERSPECTIVE;
 // BRICK_SIZE, BORDER and GRADIENT_DELTA are numbers.
 //
+// The per-mode and per-feature functions live in the raycast_*.glsl parts, pasted in where
+// this file #includes them (GlProgram::build resolves the lines; compile errors name the part):
+// classify (the transfer function), pool (bricks, values, gradients), shading, iso, mip (one
+// leaf's maximum) and image_adaptive (the pyramid's finer levels). The leaf walk and the DVR
+// and isosurface marches stay here: they share the walk's local state.
+//
 // Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
 // the index; texel space is the pool texture's (texel centres at i + 0.5).
 
@@ -117,255 +123,20 @@ const float kInfinity = 1.0 / 0.0;
 const uint kInner = 2u;
 const uint kDataLeaf = 1u;
 const uint kNull = 0xFFFFFFFFu;
-
-// ---- transfer function from its control points (exact, once per pixel) ----
-float interpolatePoints(int first, int count, float x, int channel) {
-  if (x <= tfPoints[first].x || count == 1) return tfPoints[first][channel];
-  for (int i = first + 1; i < first + count; ++i) {
-    // The later point wins at a step: move on while x is at or beyond the next point.
-    if (x < tfPoints[i].x) {
-      vec4 a = tfPoints[i - 1], b = tfPoints[i];
-      float w = (x - a.x) / (b.x - a.x);
-      return a[channel] + w * (b[channel] - a[channel]);
-    }
-  }
-  return tfPoints[first + count - 1][channel];
-}
-
-vec4 classifyExact(float value) {
-  vec3 rgb = vec3(interpolatePoints(0, uColorPoints, value, 1),
-                  interpolatePoints(0, uColorPoints, value, 2),
-                  interpolatePoints(0, uColorPoints, value, 3));
-  return vec4(rgb, interpolatePoints(uColorPoints, uOpacityPoints, value, 1));
-}
-
-#ifdef PREINTEGRATION
-// The segment along which the value runs linearly from `front` to `back`: its mean colour and
-// its extinction per unit distance counted over the whole segment (only the part of it whose
-// values lie in the table's range has material: the fraction scales the extinction).
-vec4 preintegrated(float front, float back) {
-  float lo = uPreintegrationRange.x, hi = uPreintegrationRange.y;
-  if (max(front, back) < lo || min(front, back) > hi) return vec4(0.0);
-  float f = clamp(front, lo, hi), b = clamp(back, lo, hi);
-  float span = abs(back - front);
-  float fraction = span > 0.0 ? abs(b - f) / span : 1.0;
-  vec2 bins = vec2(textureSize(uPreintegration, 0));
-  vec2 uv = ((vec2(f, b) - lo) / (hi - lo) * (bins - 1.0) + 0.5) / bins;
-  vec4 e = texture(uPreintegration, uv);
-  return e.a > 0.0 ? vec4(e.rgb / e.a, e.a * fraction) : vec4(0.0);
-}
+#ifdef STATS
+vec4 stats;  // this pixel's counters (outStats), raised by the parts below
 #endif
 
-#ifdef JITTER
-// reference::rayJitter: lowbias32 of the pixel (column, row from the top), 24 bits.
-float rayJitter(uint x, uint y) {
-  uint h = (x * 0x8da6b343u) ^ (y * 0xd8163841u);
-  h ^= h >> 16;
-  h *= 0x7feb352du;
-  h ^= h >> 15;
-  h *= 0x846ca68bu;
-  h ^= h >> 16;
-  return float(h >> 8) * (1.0 / 16777216.0);
-}
-#endif
-
-// ---- the brick pool ----
-vec3 slotIndex(uint slot) {
-  uint sx = slot % uint(uSlotGrid.x);
-  uint sy = (slot / uint(uSlotGrid.x)) % uint(uSlotGrid.y / uSlotGrid.x);
-  uint sz = slot / uint(uSlotGrid.y);
-  return vec3(sx, sy, sz);
-}
-
-vec3 slotOrigin(uint slot) { return slotIndex(slot) * float(BRICK_SIZE + 2 * BORDER); }
-
-#ifdef CELL_SKIPPING
-const int kCells = BRICK_SIZE / CELL_VOXELS;
-
-// True when no sample inside `cell` of the slot's brick can have opacity: the uTf entries
-// that linear filtering may read for values in the cell's range (one more on each side for
-// rounding) are all transparent.
-bool cellTransparent(uint slot, vec3 cell) {
-  vec2 range = texelFetch(uCellRange, ivec3(slotIndex(slot) * float(kCells) + cell), 0).rg;
-  vec2 c = (range * uValueScale + uValueOffset) * uTfMap.x + uTfMap.y;
-  float lo = min(c.x, c.y) * float(TF_TABLE_SIZE) - 0.5, hi = max(c.x, c.y) * float(TF_TABLE_SIZE) - 0.5;
-  int first = clamp(int(floor(lo)) - 1, 0, TF_TABLE_SIZE - 1);
-  int last = clamp(int(floor(hi)) + 2, 0, TF_TABLE_SIZE - 1);
-  return texelFetch(uTfNonZero, last + 1, 0).r == texelFetch(uTfNonZero, first, 0).r;
-}
-#endif
-
-float valueAt(vec3 texel) {
-  return texture(uPool, texel * uPoolInvSize).r * uValueScale + uValueOffset;
-}
-
-#ifdef MODE_MIP
-// The trilinear interpolant inside one cell from its 8 texels (lo: z = 0 as x + 2y order,
-// hi: z = 1), at fractional position f (clamped to the cell).
-float trilinearCell(vec3 f, vec4 lo, vec4 hi) {
-  f = clamp(f, 0.0, 1.0);
-  vec4 z = mix(lo, hi, f.z);
-  vec2 y = mix(z.xy, z.zw, f.y);
-  return mix(y.x, y.y, f.x);
-}
-#endif
-
-#if defined(SHADING) || defined(GRADIENT_OPACITY) || defined(BOUNDARY_ENHANCEMENT) || \
-    defined(SILHOUETTE_ENHANCEMENT) || defined(MODE_ISO)
-#define NEEDS_GRADIENT
-// Patient-space gradient (value units per mm) at a texel position of a leaf whose samples
-// are `levelScale` leaf voxels apart.
-vec3 gradientAt(vec3 texel, float levelScale) {
-#ifdef GRADIENT_POOL
-  vec4 g = texture(uGradientPool, texel * uPoolInvSize);
-  vec3 dir = g.xyz * 2.0 - 1.0;
-  float len = length(dir);
-  return len > 0.0 ? dir * (g.w * uGradientScale / len) : vec3(0.0);
-#else
-  const float h = GRADIENT_DELTA;
-  vec3 gi = vec3(valueAt(texel + vec3(h, 0, 0)) - valueAt(texel - vec3(h, 0, 0)),
-                 valueAt(texel + vec3(0, h, 0)) - valueAt(texel - vec3(0, h, 0)),
-                 valueAt(texel + vec3(0, 0, h)) - valueAt(texel - vec3(0, 0, h)));
-  return uNormalFromIndex * (gi / (2.0 * h * levelScale));
-#endif
-}
-#endif
-
-#ifdef MODE_ISO
-// The isosurface's crossing inside [lo, hi], whose excesses (value - isovalue) flo and fhi
-// differ in sign: bisection, the last step the linear root (the reference's rule, marchIso).
-float isoRoot(vec3 p0, vec3 p1, float lo, float hi, float flo, float fhi, inout float samples) {
-  for (int i = 0; i < 40; ++i) {
-    float mid = 0.5 * (lo + hi);
-    if (mid <= lo || mid >= hi) break;
-    float fm = valueAt(p0 + mid * p1) - uIsoValue;
-    samples += 1.0;
-    if (fm == 0.0) return mid;
-    if ((fm < 0.0) == (flo < 0.0)) {
-      lo = mid;
-      flo = fm;
-    } else {
-      hi = mid;
-      fhi = fm;
-    }
-  }
-  return lo + (hi - lo) * (flo / (flo - fhi));
-}
-
-// A surface thinner than the step: three consecutive samples x.x < x.y < x.z whose excesses
-// times s are g, all positive, the middle one the smallest, may straddle a dip of the
-// interpolant through zero that no sample sees (a ray grazing thin bone). The reference's
-// isoDip, the same rule. With L the steepest slope seen between the points, the Piyavskii-
-// Shubert bound min over [a, b] >= (g(a) + g(b) - L' (b - a)) / 2 with L' = 2 L (slopes may be
-// steeper than any seen) decides whether a dip is possible; the probe goes where the bound
-// with L itself has its argmin (exact for a symmetric tent, the shape of the trilinear
-// interpolant along an axis), or with L' where that bound stays above zero. A probe replaces
-// one of the three; at most kIsoDipProbes. Returns the first probe with g <= 0 (its excess in
-// fHit), or -1. Probes are kept in [tMin, tMax], where the brick has texels.
-const int kIsoDipProbes = 4;
-const float kIsoDipSlopeSafety = 2.0;
-float isoDipArgmin(vec3 x, vec3 g, float slope, out float bound) {
-  float boundA = 0.5 * (g.x + g.y - slope * (x.y - x.x));
-  float boundB = 0.5 * (g.y + g.z - slope * (x.z - x.y));
-  bound = min(boundA, boundB);
-  return boundA <= boundB ? 0.5 * (x.x + x.y) + (g.x - g.y) / (2.0 * slope)
-                          : 0.5 * (x.y + x.z) + (g.y - g.z) / (2.0 * slope);
-}
-float isoDip(vec3 p0, vec3 p1, float s, vec3 x, vec3 g, float tMin, float tMax, inout float samples,
-             out float fHit) {
-  fHit = 0.0;
-  float slope = 0.0;
-  for (int probe = 0; probe < kIsoDipProbes; ++probe) {
-    slope = max(slope, max((g.x - g.y) / (x.y - x.x), (g.z - g.y) / (x.z - x.y)));
-    if (!(slope > 0.0)) return -1.0;
-    float safeBound, bound;
-    float xSafe = isoDipArgmin(x, g, kIsoDipSlopeSafety * slope, safeBound);
-    if (safeBound > 0.0) return -1.0;
-    float xv = isoDipArgmin(x, g, slope, bound);
-    if (bound > 0.0) xv = xSafe;
-    xv = clamp(xv, tMin, tMax);
-    if (xv <= x.x || xv >= x.z || xv == x.y) return -1.0;
-    float f = valueAt(p0 + xv * p1) - uIsoValue;
-    samples += 1.0;
-    float gv = s * f;
-    if (gv <= 0.0) {
-      fHit = f;
-      return xv;
-    }
-    if (xv < x.y) {
-      if (gv < g.y) {
-        x = vec3(x.x, xv, x.y);
-        g = vec3(g.x, gv, g.y);
-      } else {
-        x.x = xv;
-        g.x = gv;
-      }
-    } else if (gv < g.y) {
-      x = vec3(x.y, xv, x.z);
-      g = vec3(g.y, gv, g.z);
-    } else {
-      x.z = xv;
-      g.z = gv;
-    }
-  }
-  return -1.0;
-}
-#endif
-
-#if defined(SHADING) || defined(MODE_ISO)
-vec3 phong(vec3 color, vec3 gradient, vec3 rayDir) {
-  float magnitude = length(gradient);
-  float diffuse = 0.0, specular = 0.0;
-  if (magnitude > 0.0) {
-    float nl = abs(dot(gradient / magnitude, rayDir));
-    diffuse = nl;
-    float rv = 2.0 * nl * nl - 1.0;
-    specular = rv > 0.0 ? pow(rv, uMaterial.w) : 0.0;
-  }
-  return color * (uMaterial.x + uMaterial.y * diffuse) + vec3(uMaterial.z * specular);
-}
-#endif
+#include "raycast_classify.glsl"
+#include "raycast_pool.glsl"
+#include "raycast_shading.glsl"
+#include "raycast_iso.glsl"
+#include "raycast_mip.glsl"
+#include "raycast_image_adaptive.glsl"
 
 void main() {
 #ifdef IMAGE_ADAPTIVE
-  if (uSynthesize != 0) {
-    // Pixel (x, y) of this level lies at pixel (x / 2, y / 2) of the level above when both
-    // are even (its ray was cast there: copied), else midway between two or four of them.
-    ivec2 size = textureSize(uCoarseColor, 0);
-    ivec2 xy = ivec2(gl_FragCoord.xy);
-    ivec2 p0 = xy / 2;
-    ivec2 odd = xy - 2 * p0;
-    ivec2 p1 = min(p0 + odd, size - 1);
-    vec4 c00 = texelFetch(uCoarseColor, p0, 0), c10 = texelFetch(uCoarseColor, ivec2(p1.x, p0.y), 0);
-    vec4 c01 = texelFetch(uCoarseColor, ivec2(p0.x, p1.y), 0), c11 = texelFetch(uCoarseColor, p1, 0);
-    vec4 a00 = texelFetch(uCoarseAux, p0, 0), a10 = texelFetch(uCoarseAux, ivec2(p1.x, p0.y), 0);
-    vec4 a01 = texelFetch(uCoarseAux, ivec2(p0.x, p1.y), 0), a11 = texelFetch(uCoarseAux, p1, 0);
-    bool copy = odd == ivec2(0);
-    // The three other pixels of the 2 x 2 block decide together, from the 2 x 2 coarse pixels
-    // around the block: neighbouring pixels cast or interpolate together, as SIMD lanes and
-    // GPU warps run them.
-    ivec2 q1 = min(p0 + 1, size - 1);
-    vec4 b10 = texelFetch(uCoarseColor, ivec2(q1.x, p0.y), 0), b01 = texelFetch(uCoarseColor, ivec2(p0.x, q1.y), 0);
-    vec4 b11 = texelFetch(uCoarseColor, q1, 0);
-    vec4 spread = max(max(c00, b10), max(b01, b11)) - min(min(c00, b10), min(b01, b11));
-    float contrast = max(max(spread.r, spread.g), max(spread.b, spread.a));
-    float d = min(min(a00.z, texelFetch(uCoarseAux, ivec2(q1.x, p0.y), 0).z),
-                  min(texelFetch(uCoarseAux, ivec2(p0.x, q1.y), 0).z, texelFetch(uCoarseAux, q1, 0).z));
-    float spacing = 2.0 * uLevelScale;
-    float bound = uAdaptiveThreshold * max(1.0, min(d / spacing, 16.0));
-    if (copy || contrast <= bound) {
-      outColor = 0.25 * (c00 + c10 + c01 + c11);
-      float depth = min(min(a00.x, a10.x), min(a01.x, a11.x));
-      float value = 0.25 * (a00.y + a10.y + a01.y + a11.y);
-      float fragDepth = max(max(a00.w, a10.w), max(a01.w, a11.w));  // the farthest: never hides a brick
-      outAux = copy ? a00 : vec4(depth, value, min(min(a00.z, a10.z), min(a01.z, a11.z)), fragDepth);
-      gl_FragDepth = outAux.w;
-#ifdef STATS
-      outStats = vec4(0.0);
-#endif
-      return;
-    }
-  }
+  if (uSynthesize != 0 && synthesizedFromCoarse()) return;
   // The ray through the centre of image pixel (2^l x, 2^l y).
   vec2 pixel = floor(gl_FragCoord.xy) * uLevelScale + 0.5;
   float oracle = kInfinity;  // the smallest projected voxel (pixels) of the leaves sampled
@@ -391,7 +162,7 @@ void main() {
   atomicAdd(adaptiveCounters[0], 1u);
 #endif
 #ifdef STATS
-  vec4 stats = vec4(0.0);
+  stats = vec4(0.0);
   outStats = stats;
 #endif
 
@@ -734,164 +505,9 @@ void main() {
 #endif  // MODE_ISO
 
 #ifdef MODE_MIP
-      // The exact maximum of the trilinear interpolant: the segment is cut where it crosses a
-      // texel-centre plane; on each piece the interpolant is a cubic in t, evaluated from the
-      // cell's 8 texels (no filtering hardware involved) at the ends and its critical points.
-      float leafMax = uintBitsToFloat(leaves[record + 7u]);
-#ifdef MIP_SAMPLED
-      // The sampled maximum (MipMethod::Sampled): the interpolant at the samples of the
-      // leaf's step only, as other raycasters do; never above the exact maximum.
-      if (!started || leafMax > best * uValueScale + uValueOffset) {
-        for (int k = k0; k < k1; k += m) {
-          float ts = t0 + (float(k) + 0.5 * float(min(m, k1 - k))) * delta;
-          float v = texture(uPool, (p0 + ts * p1) * uPoolInvSize).r;
-#ifdef STATS
-          stats.x += 1.0;
+      mipLeaf(p0, p1, t, tEnd, slot, uintBitsToFloat(leaves[record + 7u]), k0, k1, m, t0, delta, best,
+              bestT, started);
 #endif
-          if (!started || v > best) {
-            best = v;
-            bestT = ts;
-            started = true;
-          }
-        }
-      }
-#else
-      if (!started || leafMax > best * uValueScale + uValueOffset) {
-        float ta = t;
-        vec3 u0 = p0 - 0.5;  // cell space: texel centres at integers
-        vec3 invP = vec3(p1.x != 0.0 ? 1.0 / p1.x : 0.0, p1.y != 0.0 ? 1.0 / p1.y : 0.0,
-                         p1.z != 0.0 ? 1.0 / p1.z : 0.0);
-        // The cell holding the segment's start, entered in the ray's direction; then a 3D DDA
-        // from cell to cell (planes' t recomputed from the cell each time: no drift).
-        vec3 ua = u0 + ta * p1;
-        vec3 cell = floor(ua);
-        for (int a = 0; a < 3; ++a) {
-          if (p1[a] < 0.0 && ua[a] == cell[a]) cell[a] -= 1.0;
-        }
-        vec3 slotLo = slotOrigin(slot);
-        vec3 slotHi = slotLo + float(BRICK_SIZE + 2 * BORDER - 2);
-#ifdef CELL_SKIPPING
-        // Cells are grouped by CELL_VOXELS per axis, group g holding the cells whose brick
-        // voxel index k has floor((k + 1) / CELL_VOXELS) = g: all their texels lie in the
-        // range of the brick's skipping cell g (its voxels and one more on each side). A group
-        // whose largest texel cannot raise the maximum, or shows black (below uMipFloor), is
-        // crossed in one step, to the plane where the DDA would have left its last cell (the
-        // same t the DDA computes: the visible maxima and their positions stay exact).
-        vec3 cellBase = slotLo + float(BORDER);
-        vec3 checkedGroup = vec3(-1.0);
-        float groupMax = kInfinity;  // the largest texel of checkedGroup
-#endif
-        for (int piece = 0; piece < 4 * (BRICK_SIZE + 2); ++piece) {
-#ifdef CELL_SKIPPING
-          vec3 group = floor((cell - cellBase + 1.0) / float(CELL_VOXELS));
-          if (group != checkedGroup) {
-            checkedGroup = group;
-            groupMax = kInfinity;
-            if (all(greaterThanEqual(group, vec3(0.0))) && all(lessThan(group, vec3(float(kCells))))) {
-              groupMax = texelFetch(uCellRange, ivec3(slotIndex(slot) * float(kCells) + group), 0).g;
-#ifdef STATS
-              stats.x += 1.0;
-#endif
-            }
-          }
-          // Checked at every cell: the maximum may rise past the group's inside it.
-          if (groupMax < uMipFloor || (started && groupMax <= best)) {
-            // The plane where the ray leaves the group's last cell on each axis.
-            vec3 first = cellBase + group * float(CELL_VOXELS) - 1.0;
-            vec3 tPlane = vec3(kInfinity);
-            for (int a = 0; a < 3; ++a) {
-              if (p1[a] != 0.0) {
-                tPlane[a] = ((p1[a] > 0.0 ? first[a] + float(CELL_VOXELS) : first[a]) - u0[a]) * invP[a];
-              }
-            }
-            float tg = min(min(tPlane.x, tPlane.y), tPlane.z);
-            if (!(tg < tEnd)) break;
-            int a = tPlane.x <= tPlane.y ? (tPlane.x <= tPlane.z ? 0 : 2) : (tPlane.y <= tPlane.z ? 1 : 2);
-            // The cell entered there: across the exit axis the next group's first cell,
-            // on the others the cell holding the point, kept inside the group.
-            vec3 ug = u0 + tg * p1;
-            vec3 next = floor(ug);
-            for (int b = 0; b < 3; ++b) {
-              if (p1[b] < 0.0 && ug[b] == next[b]) next[b] -= 1.0;
-            }
-            next = clamp(next, first, first + float(CELL_VOXELS - 1));
-            next[a] = p1[a] > 0.0 ? first[a] + float(CELL_VOXELS) : first[a] - 1.0;
-            cell = next;
-            ta = max(ta, tg);
-            continue;
-          }
-#endif
-          vec3 tNext = vec3(kInfinity);
-          for (int a = 0; a < 3; ++a) {
-            if (p1[a] != 0.0) tNext[a] = ((p1[a] > 0.0 ? cell[a] + 1.0 : cell[a]) - u0[a]) * invP[a];
-          }
-          float tb = min(min(tNext.x, tNext.y), min(tNext.z, tEnd));
-          if (tb > ta) {
-            vec3 c0 = clamp(cell, slotLo, slotHi);
-            ivec3 ic = ivec3(c0);
-            vec4 lo = vec4(texelFetch(uPool, ic, 0).r, texelFetch(uPool, ic + ivec3(1, 0, 0), 0).r,
-                           texelFetch(uPool, ic + ivec3(0, 1, 0), 0).r,
-                           texelFetch(uPool, ic + ivec3(1, 1, 0), 0).r);
-            vec4 hi = vec4(texelFetch(uPool, ic + ivec3(0, 0, 1), 0).r,
-                           texelFetch(uPool, ic + ivec3(1, 0, 1), 0).r,
-                           texelFetch(uPool, ic + ivec3(0, 1, 1), 0).r,
-                           texelFetch(uPool, ic + ivec3(1, 1, 1), 0).r);
-            // The interpolant never exceeds its cell's largest texel: a cell that cannot
-            // raise the maximum found so far needs no evaluation (exact; most cells behind
-            // the first bright one).
-#ifdef STATS
-            stats.x += 1.0;
-#endif
-            vec4 top4 = max(lo, hi);
-            float top = max(max(top4.x, top4.y), max(top4.z, top4.w));
-#ifdef CELL_SKIPPING
-            if (top >= uMipFloor && (!started || top > best)) {
-#else
-            if (!started || top > best) {
-#endif
-              float h = tb - ta;
-              float v0 = trilinearCell(u0 + ta * p1 - c0, lo, hi);
-              float v1 = trilinearCell(u0 + (ta + h / 3.0) * p1 - c0, lo, hi);
-              float v2 = trilinearCell(u0 + (ta + 2.0 * h / 3.0) * p1 - c0, lo, hi);
-              float v3 = trilinearCell(u0 + tb * p1 - c0, lo, hi);
-              if (!started) {
-                best = v0;
-                bestT = ta;
-                started = true;
-              }
-              float d1 = v1 - v0, d2 = v2 - 2.0 * v1 + v0, d3 = v3 - 3.0 * v2 + 3.0 * v1 - v0;
-              float qa = 0.5 * d3, qb = d2 - d3, qc = d1 - 0.5 * d2 + d3 / 3.0;
-              float scale = abs(qa) + abs(qb) + abs(qc);
-              float r0 = -1.0, r1 = -1.0;
-              if (abs(qa) > 1e-6 * scale) {
-                float disc = qb * qb - 4.0 * qa * qc;
-                if (disc >= 0.0) {
-                  float q = -0.5 * (qb + (qb >= 0.0 ? sqrt(disc) : -sqrt(disc)));
-                  r0 = q / qa;
-                  if (q != 0.0) r1 = qc / q;
-                }
-              } else if (abs(qb) > 1e-6 * scale) {
-                r0 = -qc / qb;
-              }
-              if (r0 > 0.0 && r0 < 3.0) {
-                float tr = ta + r0 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
-                if (vr > best) { best = vr; bestT = tr; }
-              }
-              if (r1 > 0.0 && r1 < 3.0) {
-                float tr = ta + r1 * h / 3.0, vr = trilinearCell(u0 + tr * p1 - c0, lo, hi);
-                if (vr > best) { best = vr; bestT = tr; }
-              }
-              if (v3 > best) { best = v3; bestT = tb; }
-            }
-            ta = tb;
-          }
-          if (tb >= tEnd) break;
-          int a = tNext.x <= tNext.y ? (tNext.x <= tNext.z ? 0 : 2) : (tNext.y <= tNext.z ? 1 : 2);
-          cell[a] += p1[a] > 0.0 ? 1.0 : -1.0;
-        }
-      }
-#endif  // MIP_SAMPLED
-#endif  // MODE_MIP
     }
     if (face < 0 || !(tExit < t1) || done) break;
     uint neighbour = leaves[record + 1u + uint(face)];

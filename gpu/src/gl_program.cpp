@@ -3,8 +3,10 @@
 #include "octoray/gpu/gl_program.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
+#include <functional>
 #include <utility>
 
 #include "octoray/core/error.h"
@@ -56,8 +58,82 @@ class ShaderObject {
   GLuint id_;
 };
 
+// Included part N is numbered from line N * kPartLines + 1: #line's source-string number would
+// say it better, but Mesa's compiler does not report it.
+constexpr std::size_t kPartLines = 10000;
+
+// "; included: a.glsl from line 10001, b.glsl from line 20001" for a stage with parts.
+std::string describeParts(const std::vector<std::string>& parts) {
+  std::string text;
+  for (std::size_t i = 0; i < parts.size(); ++i) {
+    text += fmt::format("{} {} from line {}", i == 0 ? "; included:" : ",", parts[i],
+                        (i + 1) * kPartLines + 1);
+  }
+  return text;
+}
+
+struct IncludeState {
+  const std::function<std::string_view(std::string_view)>& partSource;
+  std::vector<std::string>& parts;
+  std::vector<std::string> stack;  // the includers, outermost first
+};
+
+// Appends `source` (called `name`, its first line numbered `firstLine`) to `out` with its
+// include lines expanded.
+void expandIncludes(std::string_view source, std::string_view name, std::size_t firstLine,
+                    IncludeState& state, std::string& out) {
+  std::size_t lineNumber = 0;
+  std::size_t lineStart = 0;
+  while (lineStart < source.size()) {
+    const std::size_t lineEnd = std::min(source.find('\n', lineStart), source.size());
+    const std::string_view line = source.substr(lineStart, lineEnd - lineStart);
+    ++lineNumber;
+    lineStart = lineEnd + 1;
+    const std::size_t text = line.find_first_not_of(" \t");
+    if (text == std::string_view::npos || line.compare(text, 8, "#include") != 0) {
+      out.append(line);
+      out += '\n';
+      continue;
+    }
+    const std::string where = fmt::format("{} line {}", name, lineNumber);
+    const std::size_t open = line.find('"', text + 8);
+    const std::size_t close = open == std::string_view::npos ? open : line.find('"', open + 1);
+    if (close == std::string_view::npos || close == open + 1 ||
+        line.find_first_not_of(" \t", text + 8) != open ||
+        line.find_first_not_of(" \t", close + 1) != std::string_view::npos) {
+      throw Error(where, fmt::format("malformed include \"{}\" (expected #include \"part.glsl\")",
+                                     std::string(line.substr(text))));
+    }
+    const std::string part(line.substr(open + 1, close - open - 1));
+    if (std::find(state.stack.begin(), state.stack.end(), part) != state.stack.end()) {
+      throw Error(where, fmt::format("{} includes itself (through {})", part,
+                                     fmt::join(state.stack, " -> ")));
+    }
+    if (std::find(state.parts.begin(), state.parts.end(), part) != state.parts.end()) {
+      throw Error(where, fmt::format("{} is included a second time", part));
+    }
+    std::string_view partText;
+    try {
+      partText = state.partSource(part);
+    } catch (const Error& error) {
+      throw Error(where, fmt::format("included part: {}", error.what()));
+    }
+    if (std::count(partText.begin(), partText.end(), '\n') >= kPartLines) {
+      throw Error(part, fmt::format("an included part must be shorter than {} lines", kPartLines));
+    }
+    state.parts.push_back(part);
+    const std::size_t partFirstLine = state.parts.size() * kPartLines + 1;
+    out += fmt::format("#line {}\n", partFirstLine);
+    state.stack.push_back(part);
+    expandIncludes(partText, part, partFirstLine, state, out);
+    state.stack.pop_back();
+    out += fmt::format("#line {}\n", firstLine + lineNumber);
+  }
+}
+
 ShaderObject compile(GLenum stage, const std::string& source, std::string_view name,
-                     const std::vector<std::string>& defines) {
+                     const std::vector<std::string>& defines,
+                     const std::vector<std::string>& parts) {
   ShaderObject shader(stage);
   if (shader.id() == 0) throw Error(std::string(name), "glCreateShader failed");
   const GLchar* text = source.data();
@@ -68,13 +144,25 @@ ShaderObject compile(GLenum stage, const std::string& source, std::string_view n
   glGetShaderiv(shader.id(), GL_COMPILE_STATUS, &compiled);
   if (compiled != GL_TRUE) {
     throw Error(std::string(name),
-                fmt::format("GLSL compile failed ({}):\n{}", describeDefines(defines),
-                            shaderInfoLog(shader.id())));
+                fmt::format("GLSL compile failed ({}{}):\n{}", describeDefines(defines),
+                            describeParts(parts), shaderInfoLog(shader.id())));
   }
   return shader;
 }
 
 }  // namespace
+
+std::string withIncludes(std::string_view source, std::string_view name,
+                         const std::function<std::string_view(std::string_view)>& partSource,
+                         std::vector<std::string>& parts) {
+  parts.clear();
+  IncludeState state{partSource, parts, {std::string(name)}};
+  std::string out;
+  out.reserve(source.size());
+  expandIncludes(source, name, 1, state, out);
+  if (!source.empty() && source.back() != '\n') out.pop_back();
+  return out;
+}
 
 std::string withDefines(std::string_view source, const std::vector<std::string>& defines,
                         std::string_view name) {
@@ -114,10 +202,16 @@ std::string withDefines(std::string_view source, const std::vector<std::string>&
 GlProgram GlProgram::link(std::string_view vertexSource, std::string_view fragmentSource,
                           const std::vector<std::string>& defines, std::string_view vertexName,
                           std::string_view fragmentName, const std::string& programName) {
-  const std::string vertex = withDefines(vertexSource, defines, vertexName);
-  std::string fragment = withDefines(fragmentSource, defines, fragmentName);
-  const ShaderObject vertexShader = compile(GL_VERTEX_SHADER, vertex, vertexName, defines);
-  const ShaderObject fragmentShader = compile(GL_FRAGMENT_SHADER, fragment, fragmentName, defines);
+  // Parts come from the embedded shaders; the defines follow #version, in the main file.
+  std::vector<std::string> vertexParts, fragmentParts;
+  const std::string vertex = withDefines(
+      withIncludes(vertexSource, vertexName, shaderSource, vertexParts), defines, vertexName);
+  std::string fragment = withDefines(
+      withIncludes(fragmentSource, fragmentName, shaderSource, fragmentParts), defines, fragmentName);
+  const ShaderObject vertexShader =
+      compile(GL_VERTEX_SHADER, vertex, vertexName, defines, vertexParts);
+  const ShaderObject fragmentShader =
+      compile(GL_FRAGMENT_SHADER, fragment, fragmentName, defines, fragmentParts);
 
   const GLuint program = glCreateProgram();
   if (program == 0) throw Error(programName, "glCreateProgram failed");

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdlib>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -117,6 +118,75 @@ TEST(ShaderSources, DefinesFollowTheVersionLineAndKeepLineNumbers) {
   EXPECT_THROW(withDefines("void main() {}\n", {"X"}, "a.glsl"), Error);
   EXPECT_THROW(withDefines(source, {"A\nB"}, "a.glsl"), Error);
   EXPECT_THROW(withDefines(source, {" "}, "a.glsl"), Error);
+}
+
+TEST(ShaderSources, IncludedPartsArePastedWithTheirOwnLineNumbers) {
+  const std::map<std::string, std::string, std::less<>> files = {
+      {"a.glsl", "float a() { return 1.0; }\n#include \"b.glsl\"\n"},
+      {"b.glsl", "float b() { return 2.0; }\n"},
+      {"self.glsl", "  #include \"self.glsl\"\n"},
+      {"bad.glsl", "#include b.glsl\n"}};
+  const auto lookup = [&](std::string_view name) -> std::string_view {
+    const auto it = files.find(name);
+    if (it == files.end()) throw Error(std::string(name), "no such part");
+    return it->second;
+  };
+  std::vector<std::string> parts;
+  const std::string source = "#version 450 core\n#include \"a.glsl\"\nvoid main() {}\n";
+  EXPECT_EQ(withIncludes(source, "main.glsl", lookup, parts),
+            "#version 450 core\n#line 10001\nfloat a() { return 1.0; }\n#line 20001\n"
+            "float b() { return 2.0; }\n#line 10003\n#line 3\nvoid main() {}\n");
+  EXPECT_EQ(parts, (std::vector<std::string>{"a.glsl", "b.glsl"}));
+  // The defines go after #version and leave the parts' numbering alone.
+  EXPECT_EQ(withDefines(withIncludes(source, "main.glsl", lookup, parts), {"X"}, "main.glsl"),
+            "#version 450 core\n#define X\n#line 2\n#line 10001\nfloat a() { return 1.0; }\n"
+            "#line 20001\nfloat b() { return 2.0; }\n#line 10003\n#line 3\nvoid main() {}\n");
+  const std::string plain = "#version 450 core\nvoid main() {}";
+  EXPECT_EQ(withIncludes(plain, "main.glsl", lookup, parts), plain);
+  EXPECT_TRUE(parts.empty());
+
+  const auto errorOf = [&](const std::string& text) {
+    try {
+      withIncludes(text, "main.glsl", lookup, parts);
+    } catch (const Error& error) {
+      return std::string(error.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_EQ(errorOf("#version 450 core\n\n#include \"absent.glsl\"\n"),
+            "main.glsl line 3: included part: absent.glsl: no such part");
+  EXPECT_EQ(errorOf("#include \"self.glsl\"\n"),
+            "self.glsl line 1: self.glsl includes itself (through main.glsl -> self.glsl)");
+  EXPECT_EQ(errorOf("#include \"b.glsl\"\n#include \"a.glsl\"\n"),
+            "a.glsl line 2: b.glsl is included a second time");
+  EXPECT_EQ(errorOf("#include \"bad.glsl\"\n"),
+            "bad.glsl line 1: malformed include \"#include b.glsl\" (expected #include \"part.glsl\")");
+  EXPECT_EQ(errorOf("#include \"b.glsl\" x\n"),
+            "main.glsl line 1: malformed include \"#include \"b.glsl\" x\" (expected #include "
+            "\"part.glsl\")");
+}
+
+// A compile error inside an included part is reported at 10000 x N + its line in part N, and
+// the message says which part N is.
+TEST_F(GlTest, CompileErrorInAnIncludedPartNamesThePart) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  // raycast_shading.glsl with SHADING but without the raycaster's interface: phong's use of
+  // uMaterial (its line 11) does not compile.
+  const char* source =
+      "#version 450 core\n#include \"raycast_shading.glsl\"\nout vec4 c;\nvoid main() { c = vec4(0); }\n";
+  try {
+    GlProgram::fromSources(shaderSource("fullscreen.vert.glsl"), source, {"SHADING"}, "part_test");
+    FAIL() << "an undeclared uniform compiled";
+  } catch (const Error& error) {
+    const std::string message = error.what();
+    EXPECT_NE(message.find("included: raycast_shading.glsl from line 10001"), std::string::npos)
+        << message;
+    EXPECT_NE(message.find(":10011("), std::string::npos) << message;
+  }
+  // Without SHADING the part is empty and the program builds.
+  EXPECT_NO_THROW(
+      GlProgram::fromSources(shaderSource("fullscreen.vert.glsl"), source, {}, "part_test"));
+  EXPECT_EQ(context_->takeErrors(), std::vector<std::string>{});
 }
 
 TEST_F(GlTest, HeadlessContextIsOpenGl45Core) {

@@ -3,195 +3,17 @@
 // (DVR), its isosurface depths and its MIP maxima; per-pixel leaf counts must equal the CPU
 // traversal mirror's; ramps must cross bricks without seams; variants must carry only the code
 // of the effects they use; nothing may be NaN; no GL error may occur.
+// The isosurface tests are in unit_gl_raycaster_iso.cpp, the MIP tests in
+// unit_gl_raycaster_mip.cpp; what they share in raycaster_test_support.h.
 
-#include <epoxy/gl.h>
 #include <gtest/gtest.h>
 
-#include <algorithm>
-#include <cmath>
-#include <cstdio>
-#include <cstring>
-#include <filesystem>
-#include <limits>
-#include <memory>
-#include <random>
-#include <set>
-#include <string>
-#include <vector>
-
-#include "gl_test_support.h"
-#include "memory_volume.h"
-#include "octoray/core/error.h"
-#include "octoray/dicom/formats.h"
-#include "octoray/gpu/camera.h"
-#include "octoray/gpu/gpu_renderer.h"
-#include "octoray/gpu/image_metrics.h"
-#include "octoray/gpu/reference/reference_renderer.h"
-#include "octoray/gpu/spatial_index.h"
-#include "octoray/transfer/transfer_function_io.h"
-#include "octoray/volume/phantom.h"
-#include "octoray/volume/store_builder.h"
-#include "octoray/volume/store_reader.h"
-#include "test_paths.h"
+#include "raycaster_test_support.h"
 
 namespace octoray::gpu {
 namespace {
 
-using reference::ReferenceRenderer;
-using reference::ReferenceVolume;
-using reference::RenderMode;
-
-// A store built once per test binary run from `source` (border 2: central differences).
-std::filesystem::path buildTestStore(VolumeSource& source, const std::string& name, int brickSize) {
-  const std::filesystem::path dir = test::freshTempDir("gl_raycaster_" + name);
-  const std::filesystem::path path = dir / (name + ".octoray");
-  volume::BuildOptions options;
-  options.brickSize = brickSize;
-  options.border = 2;
-  volume::buildStore(source, path.string(), options);
-  return path;
-}
-
-const std::filesystem::path& phantomStore() {
-  static const std::filesystem::path path = [] {
-    volume::PhantomOptions options;
-    options.dims = {96, 88, 72};
-    options.spacingMm = {0.6, 0.55, 0.8};
-    options.seed = 7;
-    const auto source = volume::makePhantom(options);
-    return buildTestStore(*source, "phantom", 16);
-  }();
-  return path;
-}
-
-// A linear ramp in index space on a sheared grid (MemoryVolume's patientFromIndex has a
-// shear): trilinear interpolation reproduces it exactly, so any seam between bricks, a wrong
-// border or a half-texel shift shows against the reference.
-const std::filesystem::path& rampStore() {
-  static const std::filesystem::path path = [] {
-    test::MemoryVolume source({70, 50, 40}, [](int64_t i, int64_t j, int64_t k) {
-      return static_cast<float>(-900 + 10 * i + 14 * j + 17 * k);
-    });
-    return buildTestStore(source, "ramp", 16);
-  }();
-  return path;
-}
-
-Camera orbit(const volume::StoreReader& store, double azimuth, double elevation, int size,
-             Projection projection = Projection::Perspective, double zoom = 1.0) {
-  OrbitParameters o;
-  o.azimuthDegrees = azimuth;
-  o.elevationDegrees = elevation;
-  o.width = o.height = size;
-  o.projection = projection;
-  o.zoom = zoom;
-  return orbitCamera({store.layout().levelDims(store.layout().leafLevel()), store.patientFromIndex()}, o);
-}
-
-reference::RenderOptions referenceOptions(const RaycastOptions& o) {
-  reference::RenderOptions r;
-  r.mode = o.mode == RaycastMode::Iso ? RenderMode::Iso
-           : o.mode == RaycastMode::Mip ? RenderMode::Mip
-                                        : RenderMode::Dvr;
-  r.stepMm = o.stepMm;
-  r.earlyTermination = o.earlyTermination;
-  r.shading = o.shading == RaycastOptions::Shading::On    ? reference::RenderOptions::Shading::On
-              : o.shading == RaycastOptions::Shading::Off ? reference::RenderOptions::Shading::Off
-                                                          : reference::RenderOptions::Shading::FromTransferFunction;
-  r.gradientOpacity = o.gradientOpacity;
-  r.boundary.enabled = o.boundary.enabled;
-  r.boundary.kC = o.boundary.kC;
-  r.boundary.kS = o.boundary.kS;
-  r.boundary.kE = o.boundary.kE;
-  r.isoValue = o.isoValue;
-  return r;
-}
-
-int64_t nonFinite(const Frame& frame) {
-  int64_t n = 0;
-  for (float v : frame.image.rgba) n += std::isfinite(v) ? 0 : 1;
-  return n;
-}
-
-transfer::TransferFunction rampTf(bool shade) {
-  transfer::TransferFunction tf;
-  tf.name = "ramp";
-  tf.color = {{-900, 0.1f, 0.2f, 0.9f}, {0, 0.9f, 0.8f, 0.2f}, {1200, 1.0f, 0.3f, 0.1f}};
-  tf.opacity = {{-900, 0.0f}, {-600, 0.02f}, {1200, 0.15f}};
-  tf.material.shade = shade;
-  tf.unitDistanceMm = 1.0;
-  return tf;
-}
-
-// Isosurface depths of a GPU frame against the reference's: pixels hit by both, pixels hit by
-// one only, and pixels whose depths differ by more than `tolerance` mm.
-struct IsoAgreement {
-  int64_t hitsBoth = 0, hitMismatch = 0, far = 0;
-};
-IsoAgreement isoAgreement(const Image& gpu, const Image& reference, double tolerance) {
-  IsoAgreement a;
-  for (std::size_t i = 0; i < gpu.depth.size(); ++i) {
-    const bool g = std::isfinite(gpu.depth[i]), r = std::isfinite(reference.depth[i]);
-    if (g != r) {
-      ++a.hitMismatch;
-      continue;
-    }
-    if (!g) continue;
-    ++a.hitsBoth;
-    if (std::abs(gpu.depth[i] - reference.depth[i]) > tolerance) ++a.far;
-  }
-  return a;
-}
-
-// MIP maxima of a GPU frame against the reference's. Where the reference's maximum is
-// invisible (zero opacity), the working set may lack the bricks that hold it (they cannot
-// show): the GPU may then miss or find a lower, equally invisible maximum (`invisibleShown`
-// counts those that became visible). Visible maxima must be equal to `oneStep`.
-struct MipAgreement {
-  int64_t hits = 0, differ = 0, missed = 0, invisibleShown = 0;
-  double worst = 0;
-};
-MipAgreement mipAgreement(const std::vector<float>& gpu, const std::vector<double>& reference,
-                          const transfer::TransferFunction& tf, double oneStep) {
-  const auto visible = [&](double v) { return !std::isnan(v) && tf.evaluate(v)[3] > 0; };
-  MipAgreement a;
-  for (std::size_t i = 0; i < gpu.size(); ++i) {
-    const double r = reference[i], g = gpu[i];
-    if (!visible(r)) {
-      a.invisibleShown += visible(g) ? 1 : 0;
-      continue;
-    }
-    if (std::isnan(g)) {
-      ++a.missed;
-      continue;
-    }
-    ++a.hits;
-    a.worst = std::max(a.worst, std::abs(r - g));
-    if (std::abs(r - g) > oneStep) ++a.differ;
-  }
-  return a;
-}
-
-class RaycasterTest : public GlTest {
- protected:
-  // Renders with both renderers; checks finiteness and the GL error log.
-  struct Pair {
-    Frame gpu;
-    reference::RenderResult reference;
-  };
-  Pair renderBoth(const volume::StoreReader& store, const Camera& camera,
-                  const transfer::TransferFunction& tf, const RaycastOptions& options) {
-    GpuRenderer renderer(store);
-    Pair p{renderer.render(camera, tf, options), {}};
-    const ReferenceVolume volume = ReferenceVolume::fromStore(store);
-    p.reference = ReferenceRenderer(volume).render(camera, tf, referenceOptions(options));
-    EXPECT_EQ(nonFinite(p.gpu), 0) << "NaN or infinite colour";
-    EXPECT_TRUE(context_->takeErrors().empty());
-    return p;
-  }
-};
-
-#define OCTORAY_GL_TEST_PREAMBLE() OCTORAY_REQUIRE_CONTEXT(context_)
+using namespace raycaster_test;
 
 TEST_F(RaycasterTest, ShadedDvrMatchesTheReferenceOnThePhantom) {
   OCTORAY_GL_TEST_PREAMBLE();
@@ -231,115 +53,6 @@ TEST_F(RaycasterTest, EnhancementsAndUnshadedDvrMatchTheReference) {
   m = compare(p.reference.image, p.gpu.image);
   EXPECT_GE(m.psnrDb, 40.0);
   EXPECT_GE(m.ssim, 0.98);
-}
-
-TEST_F(RaycasterTest, IsosurfaceDepthIsWithinHalfAVoxelOfTheReference) {
-  OCTORAY_GL_TEST_PREAMBLE();
-  const volume::StoreReader store(phantomStore().string());
-  RaycastOptions options;
-  options.mode = RaycastMode::Iso;
-  options.isoValue = 300;
-  options.lodPixels = 0;
-  const transfer::TransferFunction tf = transfer::findPreset("bone");
-  const Camera camera = orbit(store, 75, 25, 128);
-  const Pair p = renderBoth(store, camera, tf, options);
-  const IsoAgreement a = isoAgreement(p.gpu.image, p.reference.image, 0.5 * 0.55);  // half a voxel
-  EXPECT_GT(a.hitsBoth, 2000);
-  EXPECT_EQ(a.far, 0) << "pixels whose isosurface depth differs by more than half a voxel";
-  // A pixel may change between hit and miss only where the surface grazes the ray.
-  EXPECT_LE(a.hitMismatch, a.hitsBoth / 500) << a.hitMismatch << " pixels hit in one renderer only";
-  const ImageMetrics m = compare(p.reference.image, p.gpu.image);
-  EXPECT_GE(m.psnrDb, 35.0);
-}
-
-// One plane of 1000 (k = 8) in zeros, isovalue 990: the surface is a sliver 0.02 voxel thick
-// that steps of 0.2-0.3 voxel mostly straddle (ReferenceIso.FindsASurfaceThinnerThanTheStep
-// shows it on the sample grid). Both renderers must find it at every pixel, at the same depth.
-TEST_F(RaycasterTest, IsosurfaceThinnerThanTheStepIsFound) {
-  OCTORAY_GL_TEST_PREAMBLE();
-  static const std::filesystem::path path = [] {
-    test::MemoryVolume source({40, 36, 18}, [](int64_t, int64_t, int64_t k) {
-      return k == 8 ? 1000.0f : 0.0f;
-    });
-    return buildTestStore(source, "plate", 16);
-  }();
-  const volume::StoreReader store(path.string());
-  RaycastOptions options;
-  options.mode = RaycastMode::Iso;
-  options.isoValue = 990;
-  options.lodPixels = 0;
-  const transfer::TransferFunction tf = transfer::findPreset("bone");
-  const Camera camera = orbit(store, 30, 75, 24, Projection::Orthographic, 5.0);
-  for (double stepMm : {0.41, 0.45, 0.49, 0.53, 0.57}) {  // 0.2-0.3 of the 2 mm z spacing
-    options.stepMm = stepMm;
-    const Pair p = renderBoth(store, camera, tf, options);
-    const IsoAgreement a = isoAgreement(p.gpu.image, p.reference.image, 0.01);
-    EXPECT_EQ(a.hitsBoth, 24 * 24) << "step " << stepMm << " mm: " << a.hitMismatch
-                                   << " pixels hit in one renderer only";
-    EXPECT_EQ(a.far, 0) << "step " << stepMm << " mm: depths differ by more than 0.01 mm";
-  }
-}
-
-TEST_F(RaycasterTest, MipEqualsTheReferenceAtSixteenBits) {
-  OCTORAY_GL_TEST_PREAMBLE();
-  const volume::StoreReader store(phantomStore().string());
-  RaycastOptions options;
-  options.mode = RaycastMode::Mip;
-  options.lodPixels = 0;
-  const transfer::TransferFunction tf = transfer::findPreset("bone");
-  for (const Projection projection : {Projection::Perspective, Projection::Orthographic}) {
-    const Camera camera = orbit(store, 250, 40, 96, projection);
-    const Pair p = renderBoth(store, camera, tf, options);
-    // One 16-bit stored step, in HU.
-    const MipAgreement a = mipAgreement(p.gpu.value, p.reference.value, tf, store.header().valueScale);
-    EXPECT_EQ(a.invisibleShown, 0);
-    EXPECT_EQ(a.missed, 0) << "visible maxima missed by the GPU";
-    EXPECT_GT(a.hits, 1000);
-    EXPECT_EQ(a.differ, 0) << "worst difference " << a.worst << " HU";
-  }
-}
-
-// The sampled MIP takes the interpolant at the step's samples only: never above the exact
-// maximum beyond the filtering hardware's precision (GL lets texture filtering weights have
-// 8 fractional bits, as llvmpipe's do: up to 1/256 of the value range), and close to it.
-TEST_F(RaycasterTest, SampledMipNeverExceedsTheExactMaximum) {
-  OCTORAY_GL_TEST_PREAMBLE();
-  const volume::StoreReader store(phantomStore().string());
-  GpuRenderer renderer(store);
-  const transfer::TransferFunction tf = transfer::findPreset("bone");
-  const Camera camera = orbit(store, 300, 20, 96);
-  RaycastOptions options;
-  options.mode = RaycastMode::Mip;
-  options.lodPixels = 0;
-  const Frame exact = renderer.render(camera, tf, options);
-  options.mip = RaycastOptions::MipMethod::Sampled;
-  const Frame sampled = renderer.render(camera, tf, options);
-  const double filtering = (store.node(0).maxValue - store.node(0).minValue) / 256.0;
-  int64_t lower = 0, hits = 0, unsampled = 0;
-  for (std::size_t i = 0; i < exact.value.size(); ++i) {
-    if (std::isnan(exact.value[i])) {  // no maximum found, or none that shows
-      const float s = sampled.value[i];
-      EXPECT_TRUE(std::isnan(s) || !(reference::classify(tf, s).alpha > 0)) << "pixel " << i;
-      continue;
-    }
-    if (std::isnan(sampled.value[i])) {  // the chord's part in data leaves holds no sample
-      ++unsampled;
-      continue;
-    }
-    // Below the TF's first opacity the MIP picture is black whatever the maximum, and the
-    // working set does not refine nodes whose range stays there (the MIP threshold): the
-    // maxima are compared where they are seen.
-    if (!(reference::classify(tf, exact.value[i]).alpha > 0)) continue;
-    ++hits;
-    EXPECT_LE(sampled.value[i], exact.value[i] + filtering) << "pixel " << i;
-    lower += sampled.value[i] < exact.value[i] - filtering ? 1 : 0;
-  }
-  EXPECT_GT(hits, 1000);
-  EXPECT_LT(unsampled, hits / 100);
-  EXPECT_GT(lower, 0) << "sampling should miss some peaks between samples";
-  EXPECT_GE(compare(exact.image, sampled.image).psnrDb, 40.0);
-  EXPECT_EQ(nonFinite(sampled), 0);
-  EXPECT_TRUE(context_->takeErrors().empty());
 }
 
 TEST_F(RaycasterTest, RampCrossesBricksAndLevelsWithoutSeams) {
@@ -681,52 +394,6 @@ TEST_F(RaycasterTest, CellSkippingChangesNoPixelAndTakesFewerSamples) {
   EXPECT_TRUE(context_->takeErrors().empty());
 }
 
-// The exact MIP crosses groups of cells that cannot raise the maximum, or whose values all
-// show black, in one step: the same picture and depths bit for bit, the same visible maxima,
-// from far fewer cells evaluated. Invisible maxima may be left unfound (NaN), never shown.
-TEST_F(RaycasterTest, MipCellSkippingChangesNoPixelAndVisitsFewerCells) {
-  OCTORAY_GL_TEST_PREAMBLE();
-  const auto sameBits = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
-  for (const std::filesystem::path* path : {&phantomStore(), &rampStore()}) {
-    const volume::StoreReader store(path->string());
-    GpuRenderer renderer(store);
-    const transfer::TransferFunction tf = transfer::findPreset("bone");
-    const auto visible = [&](float v) { return !std::isnan(v) && tf.evaluate(v)[3] > 0; };
-    for (const Projection projection : {Projection::Perspective, Projection::Orthographic}) {
-      RaycastOptions options;
-      options.mode = RaycastMode::Mip;
-      options.lodPixels = 0;
-      options.stats = true;
-      const Camera camera = orbit(store, 250, 40, 96, projection);
-      const Frame skipping = renderer.render(camera, tf, options);
-      options.cellSkipping = false;
-      const Frame evaluating = renderer.render(camera, tf, options);
-      EXPECT_EQ(skipping.image.rgba, evaluating.image.rgba) << path->filename();
-      ASSERT_EQ(skipping.value.size(), evaluating.value.size());
-      int64_t visibleMaxima = 0, differ = 0, invisibleShown = 0;
-      for (std::size_t i = 0; i < evaluating.value.size(); ++i) {
-        if (visible(evaluating.value[i])) {
-          ++visibleMaxima;
-          differ += sameBits(skipping.value[i], evaluating.value[i]) &&
-                            sameBits(skipping.image.depth[i], evaluating.image.depth[i])
-                        ? 0
-                        : 1;
-        } else {
-          invisibleShown += visible(skipping.value[i]) ? 1 : 0;
-        }
-      }
-      EXPECT_GT(visibleMaxima, 1000) << path->filename();
-      EXPECT_EQ(differ, 0) << path->filename() << ": visible maxima or their depths differ";
-      EXPECT_EQ(invisibleShown, 0) << path->filename();
-      // On the ramp the maximum rises toward one end of most chords: little to skip there.
-      if (path == &phantomStore()) {
-        EXPECT_LT(skipping.stats.samplesPerPixel, 0.8 * evaluating.stats.samplesPerPixel);
-      }
-    }
-  }
-  EXPECT_TRUE(context_->takeErrors().empty());
-}
-
 TEST_F(RaycasterTest, SmallPoolKeepsTheWorkingSetCoarseInsteadOfFailing) {
   OCTORAY_GL_TEST_PREAMBLE();
   const volume::StoreReader store(phantomStore().string());
@@ -808,6 +475,7 @@ TEST_F(RaycasterTest, PhilipsHeadDvrIsoAndMipMatchTheReference) {
   EXPECT_GT(ma.hits, 1000);
   EXPECT_EQ(ma.differ, 0) << "worst difference " << ma.worst << " HU";
 }
+
 
 }  // namespace
 }  // namespace octoray::gpu

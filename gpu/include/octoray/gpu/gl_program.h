@@ -6,6 +6,7 @@
 
 #include <epoxy/gl.h>
 
+#include <functional>
 #include <string>
 #include <string_view>
 #include <unordered_map>
@@ -17,7 +18,7 @@ namespace octoray::gpu {
 // A linked vertex + fragment program. A variant is the list of defines: each entry
 // ("SHADING", "MODE_DVR", "BRICK_EDGE 34") becomes "#define <entry>" on its own line right
 // after the #version line of both stages; a #line directive after them keeps the compiler's
-// line numbers those of the file.
+// line numbers those of the file. Include lines are expanded first (withIncludes).
 class GlProgram {
  public:
   // From embedded shaders (gpu/shaders/<name>). Throws octoray::Error naming the file with
@@ -52,6 +53,16 @@ class GlProgram {
   std::string fragmentSource_;
   mutable std::unordered_map<std::string, GLint> uniforms_;
 };
+
+// `source` (the shader `name`) with each line `#include "part.glsl"` replaced by the text of
+// partSource("part.glsl") (the embedded shaders for programs), itself expanded. #line
+// directives number the N-th part pasted (parts[N - 1]) from line N * 10000 + 1, which compile
+// errors list, and resume the includer's numbering after it. Throws octoray::Error naming the
+// includer and line for a malformed include, an absent part, a part included twice or
+// including itself, and a part of 10000 lines or more.
+std::string withIncludes(std::string_view source, std::string_view name,
+                         const std::function<std::string_view(std::string_view)>& partSource,
+                         std::vector<std::string>& parts);
 
 // `source` with "#define <entry>" lines inserted after its #version line (then a #line
 // directive). Throws octoray::Error(name, ...) when there is no #version line or an entry is

@@ -104,7 +104,7 @@ struct RenderOptions {
 
 // The per-pixel offset of ray-start jitter in [0, 1): a 32-bit integer hash of the pixel
 // (column x, row y from the top), the top 24 bits as a fraction (exact in float).
-// raycast.frag.glsl computes the same function.
+// raycast_classify.glsl computes the same function.
 float rayJitter(uint32_t x, uint32_t y);
 
 struct RenderStats {
