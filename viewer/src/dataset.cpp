@@ -508,6 +508,10 @@ void Dataset::importThread() {
       status_ = reuse ? "reused the cached store" : "imported";
     }
     slicesDone_ = slicesTotal_.load();
+    // A retrieved series' preview holds every slice once the dataset is ready: its last
+    // arrivals (the files that landed after the last poll, placed alongside the import).
+    // A folder's preview fill may still run (it reads the whole volume) and is not waited for.
+    if (arrivals_ && previewThread_.joinable()) previewThread_.join();
     state_ = State::Ready;
   } catch (const volume::BuildCancelled&) {
     std::lock_guard lock(mutex_);

@@ -118,8 +118,9 @@ class Dataset {
   // Opens a store now (throws octoray::Error when it is damaged), or starts the background
   // import of any other input (its errors arrive through state() and error()).
   Dataset(const std::string& path, const std::filesystem::path& cacheDir);
-  // A series still arriving into incoming->folder: the preview fills as its files land, and
-  // the import of the folder starts once the retrieval is complete.
+  // A series still arriving into incoming->folder: the preview fills as its files land, the
+  // import of the folder starts once the retrieval is complete, and the preview holds every
+  // slice that landed by the time the dataset is Ready.
   Dataset(std::shared_ptr<IncomingSeries> incoming, const std::filesystem::path& cacheDir);
   ~Dataset();  // cancels a running import (the partial store is removed by the builder)
   Dataset(const Dataset&) = delete;
