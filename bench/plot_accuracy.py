@@ -1,13 +1,14 @@
 #!/usr/bin/python3
 """Plots and tables from bench/accuracy.py's output (docs/accuracy.md).
 
-Usage: bench/plot_accuracy.py OUT_DIR [--images DIR]
+Usage: bench/plot_accuracy.py OUT_DIR [--images DIR] [--view N]
 Reads OUT_DIR/rows.csv, truths.csv, scaling.csv and machine.json; writes one PNG per scene and
 mode (error against the truth over time per frame, every setting of ours and VTK's, with the
 Pareto fronts) into --images (default OUT_DIR), and OUT_DIR/report.md with the tables:
 every knob's settings (median over views), VTK at equal error (for each VTK point, our fastest
 setting with an error no larger, and the time ratio), each view's defaults and equal-error
-ratios, and scaling.
+ratios, and scaling. With --view N, only that view's rows: OUT_DIR/report-vN.md and
+accuracy-SCENE-MODE-vN.png (one view's every knob, not a median over views).
 """
 
 import argparse
@@ -122,6 +123,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("out")
     p.add_argument("--images", default="")
+    p.add_argument("--view", type=int, default=None, help="only this view's rows")
     args = p.parse_args()
     out = Path(args.out)
     images = Path(args.images) if args.images else out
@@ -129,6 +131,14 @@ def main():
     rows = load(out / "rows.csv")
     truths = load(out / "truths.csv")
     scaling = load(out / "scaling.csv")
+    suffix, heading = "", ""
+    if args.view is not None:
+        rows = [r for r in rows if int(r["view"]) == args.view]
+        truths = [t for t in truths if int(t["view"]) == args.view]
+        scaling = []
+        suffix, heading = f"-v{args.view}", f", view {args.view}"
+        if not rows:
+            raise SystemExit(f"{out / 'rows.csv'}: no rows of view {args.view}")
     machine = json.loads((out / "machine.json").read_text()) if (out / "machine.json").exists() else {}
     med = median_rows(rows)
     report = [f"Measured {machine.get('date', '?')} on `{machine.get('uname', '?')}` ({machine.get('cpus', '?')} CPUs); "
@@ -152,7 +162,7 @@ def main():
     for scene, mode in scenes_modes:
         ours = [m for m in med if m["scene"] == scene and m["mode"] == mode and m["renderer"] == "octoray"]
         vtk = [m for m in med if m["scene"] == scene and m["mode"] == mode and m["renderer"].startswith("vtk")]
-        report += [f"### {scene}, {mode}", "",
+        report += [f"### {scene}, {mode}{heading}", "",
                    "| renderer | knob | setting | ms/frame | draw ms | rays | samples/image px | contributing/covered px | resident MiB | PSNR dB | SSIM | max err | depth err (vox, mean/max) |",
                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for m in ours + vtk:
@@ -202,11 +212,11 @@ def main():
         ax.set_xscale("log")
         ax.set_xlabel("ms per frame (median, log scale)")
         ax.set_ylabel("PSNR against the converged truth (dB)")
-        ax.set_title(f"{scene}, {mode}: error against time")
+        ax.set_title(f"{scene}, {mode}{heading}: error against time")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6, ncol=2, loc="lower right")
         fig.tight_layout()
-        fig.savefig(images / f"accuracy-{scene}-{mode}.png")
+        fig.savefig(images / f"accuracy-{scene}-{mode}{suffix}.png")
         plt.close(fig)
 
     if scaling:
@@ -216,8 +226,8 @@ def main():
             report.append(f"| {s['size']} | {s['renderer']} | {fmt(number(s.get('medianMs')))} | {fmt(number(s.get('firstMs')))} | "
                           f"{s.get('peakRssMiB') or '–'} | {s.get('note') or ''} |")
         report.append("")
-    (out / "report.md").write_text("\n".join(report) + "\n")
-    print(f"{out / 'report.md'} and {len(scenes_modes)} plots in {images}")
+    (out / f"report{suffix}.md").write_text("\n".join(report) + "\n")
+    print(f"{out / f'report{suffix}.md'} and {len(scenes_modes)} plots in {images}")
 
 
 if __name__ == "__main__":
