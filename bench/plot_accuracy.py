@@ -7,7 +7,7 @@ mode (error against the truth over time per frame, every setting of ours and VTK
 Pareto fronts) into --images (default OUT_DIR), and OUT_DIR/report.md with the tables:
 every knob's settings (median over views), VTK at equal error (for each VTK point, our fastest
 setting with an error no larger, and the time ratio), each view's defaults and equal-error
-ratios, and scaling. With --view N, only that view's rows: OUT_DIR/report-vN.md and
+ratios, every setting side by side by mode and view, and scaling. With --view N, only that view's rows: OUT_DIR/report-vN.md and
 accuracy-SCENE-MODE-vN.png (one view's every knob, not a median over views).
 """
 
@@ -111,6 +111,33 @@ def per_view(rows):
     return out + [""]
 
 
+def knobs_by_view(rows):
+    """Every setting side by side across the modes and views of each scene: ms per frame and
+    PSNR against the truth, one column per (mode, view)."""
+    out = []
+    for scene in sorted({r["scene"] for r in rows}):
+        rs = [r for r in rows if r["scene"] == scene]
+        cells = sorted({(r["mode"], int(r["view"])) for r in rs})
+        settings = []
+        for r in rs:
+            key = (r["renderer"], r["knob"], r["setting"])
+            if key not in settings:
+                settings.append(key)
+        out += [f"### {scene}: every setting by mode and view (ms per frame, PSNR dB)", "",
+                "| renderer | knob | setting | " + " | ".join(f"{m} v{v}" for m, v in cells) + " |",
+                "|---|---|---|" + "---|" * len(cells)]
+        for key in settings:
+            values = []
+            for mode, view in cells:
+                r = next((r for r in rs if (r["renderer"], r["knob"], r["setting"]) == key
+                          and r["mode"] == mode and int(r["view"]) == view), None)
+                ms, db = (number(r.get("medianMs")), number(r.get("psnrDb"))) if r else (None, None)
+                values.append(f"{ms:.0f}, {db:.1f}" if ms is not None and db is not None else "–")
+            out.append(f"| {key[0]} | {key[1]} | {key[2]} | " + " | ".join(values) + " |")
+        out.append("")
+    return out
+
+
 def fmt(v, digits=1):
     if v is None:
         return "–"
@@ -156,6 +183,7 @@ def main():
     report.append("")
     if len({r["view"] for r in rows}) > 1:
         report += per_view(rows)
+        report += knobs_by_view(rows)
 
     # Knob tables and plots per scene and mode.
     scenes_modes = sorted({(m["scene"], m["mode"]) for m in med})
