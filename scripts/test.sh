@@ -65,20 +65,22 @@ shared_dir=$(cd .. && pwd)/shared
 build-fuzz/bin/make_format_seeds build-fuzz/seeds "$shared_dir" "$PWD"
 # fuzz TARGET SEEDS SECONDS: the kept crashers of fuzz/regressions/TARGET first (each must now
 # pass), then SECONDS of fuzzing from SEEDS; new inputs go to corpus/, a crash, leak, timeout or
-# OOM input to artifacts/ and fails the run.
+# OOM input to artifacts/ and fails the run. The targets' scratch files go to tmp/ (TMPDIR), so
+# a target killed mid-run leaves them in the build tree, removed by the next run, not in /tmp.
 fuzz() {
   local target=$1 seeds=$2 seconds=$3 dir=build-fuzz/$1
-  rm -rf "$dir" && mkdir -p "$dir/corpus" "$dir/artifacts"
+  rm -rf "$dir" && mkdir -p "$dir/corpus" "$dir/artifacts" "$dir/tmp"
   local options=(-timeout=10 -rss_limit_mb=2048 -artifact_prefix="$dir/artifacts/")
   export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+  local scratch=$PWD/$dir/tmp
   if [[ -d fuzz/regressions/$target ]] && compgen -G "fuzz/regressions/$target/*" >/dev/null; then
-    if ! "build-fuzz/bin/$target" "${options[@]}" fuzz/regressions/"$target"/* >"$dir/regressions.log" 2>&1; then
+    if ! TMPDIR=$scratch "build-fuzz/bin/$target" "${options[@]}" fuzz/regressions/"$target"/* >"$dir/regressions.log" 2>&1; then
       tail -n 40 "$dir/regressions.log"
       echo "$target: a kept crasher (fuzz/regressions/$target) fails again" >&2
       exit 1
     fi
   fi
-  if "build-fuzz/bin/$target" "$dir/corpus" "$seeds" -max_total_time="$seconds" -print_final_stats=1 \
+  if TMPDIR=$scratch "build-fuzz/bin/$target" "$dir/corpus" "$seeds" -max_total_time="$seconds" -print_final_stats=1 \
       "${options[@]}" >"$dir/fuzz.log" 2>&1; then
     echo "$target: no crash in $seconds s ($(grep -o 'stat::number_of_executed_units: *[0-9]*' \
       "$dir/fuzz.log" | grep -o '[0-9]*$') executions; log $dir/fuzz.log)"

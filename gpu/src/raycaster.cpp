@@ -406,6 +406,48 @@ const std::string& Raycaster::variantSource(const transfer::TransferFunction& tf
   return impl_->program(impl_->defines(tf, options, projection, false)).fragmentSourceWithDefines();
 }
 
+reference::RenderOptions referenceOptions(const RaycastOptions& options) {
+  reference::RenderOptions r;
+  r.mode = options.mode == RaycastMode::Iso   ? reference::RenderMode::Iso
+           : options.mode == RaycastMode::Mip ? reference::RenderMode::Mip
+                                              : reference::RenderMode::Dvr;
+  r.stepMm = options.stepMm;
+  r.earlyTermination = options.earlyTermination;
+  r.shading = options.shading == RaycastOptions::Shading::On    ? reference::RenderOptions::Shading::On
+              : options.shading == RaycastOptions::Shading::Off ? reference::RenderOptions::Shading::Off
+                                                                : reference::RenderOptions::Shading::FromTransferFunction;
+  r.gradientOpacity = options.gradientOpacity;
+  r.boundary.enabled = options.boundary.enabled;
+  r.boundary.kC = options.boundary.kC;
+  r.boundary.kS = options.boundary.kS;
+  r.boundary.kE = options.boundary.kE;
+  r.isoValue = options.isoValue;
+  r.preintegration = options.preintegration;
+  r.jitter = options.jitter;
+  return r;
+}
+
+RaycastOptions raycastOptions(const reference::RenderOptions& options) {
+  RaycastOptions r;
+  r.mode = options.mode == reference::RenderMode::Iso   ? RaycastMode::Iso
+           : options.mode == reference::RenderMode::Mip ? RaycastMode::Mip
+                                                        : RaycastMode::Dvr;
+  r.stepMm = options.stepMm;
+  r.earlyTermination = options.earlyTermination;
+  r.shading = options.shading == reference::RenderOptions::Shading::On    ? RaycastOptions::Shading::On
+              : options.shading == reference::RenderOptions::Shading::Off ? RaycastOptions::Shading::Off
+                                                                          : RaycastOptions::Shading::FromTransferFunction;
+  r.gradientOpacity = options.gradientOpacity;
+  r.boundary.enabled = options.boundary.enabled;
+  r.boundary.kC = options.boundary.kC;
+  r.boundary.kS = options.boundary.kS;
+  r.boundary.kE = options.boundary.kE;
+  r.isoValue = options.isoValue;
+  r.preintegration = options.preintegration;
+  r.jitter = options.jitter;
+  return r;
+}
+
 void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
                      const RaycastOptions& options) {
   camera.validate();

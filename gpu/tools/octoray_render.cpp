@@ -370,17 +370,7 @@ int runGpu(const Arguments& a) {
   const transfer::TransferFunction tf = loadTransferFunction(a);
   // The options both renderers share, parsed once (renderOptions), then the GPU's own.
   const RenderOptions shared = renderOptions(a);
-  gpu::RaycastOptions options;
-  options.mode = shared.mode == RenderMode::Iso   ? gpu::RaycastMode::Iso
-                 : shared.mode == RenderMode::Mip ? gpu::RaycastMode::Mip
-                                                  : gpu::RaycastMode::Dvr;
-  options.isoValue = shared.isoValue;
-  options.stepMm = shared.stepMm;
-  options.earlyTermination = shared.earlyTermination;
-  options.shading = shared.shading == RenderOptions::Shading::On    ? gpu::RaycastOptions::Shading::On
-                    : shared.shading == RenderOptions::Shading::Off ? gpu::RaycastOptions::Shading::Off
-                                                                    : gpu::RaycastOptions::Shading::FromTransferFunction;
-  options.gradientOpacity = shared.gradientOpacity;
+  gpu::RaycastOptions options = gpu::raycastOptions(shared);
   options.boundary = parseEnhancement(a.boundary, "--boundary");
   if (!a.clip.empty()) {
     double v[6];
@@ -398,8 +388,6 @@ int runGpu(const Arguments& a) {
   }
   options.lodPixels = a.lodPixels;
   options.cellSkipping = !a.noCellSkipping;
-  options.preintegration = shared.preintegration;
-  options.jitter = shared.jitter;
   if (a.imageAdaptive == "on") {
     options.imageAdaptive = gpu::kImageAdaptiveDefaultThreshold;
   } else if (a.imageAdaptive != "off") {

@@ -1,8 +1,8 @@
 #pragma once
 // What the GPU raycaster tests (unit_gl_raycaster*.cpp) share: the test stores (built once per
-// test binary run), orbit cameras, the reference options matching RaycastOptions, the
-// isosurface-depth and MIP-maximum comparisons, and the fixture that renders a picture with
-// both renderers.
+// test binary run), orbit cameras, the isosurface-depth and MIP-maximum comparisons, and the
+// fixture that renders a picture with both renderers (the reference's options from
+// referenceOptions, raycaster.h).
 
 #include <epoxy/gl.h>
 #include <gtest/gtest.h>
@@ -33,6 +33,7 @@
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"
+#include "test_stores.h"
 
 namespace octoray::gpu::raycaster_test {
 
@@ -40,15 +41,9 @@ using reference::ReferenceRenderer;
 using reference::ReferenceVolume;
 using reference::RenderMode;
 
-// A store built once per test binary run from `source` (border 2: central differences).
-inline std::filesystem::path buildTestStore(VolumeSource& source, const std::string& name, int brickSize) {
-  const std::filesystem::path dir = test::freshTempDir("gl_raycaster_" + name);
-  const std::filesystem::path path = dir / (name + ".octoray");
-  volume::BuildOptions options;
-  options.brickSize = brickSize;
-  options.border = 2;
-  volume::buildStore(source, path.string(), options);
-  return path;
+// The test stores, each built once per test binary run (border 2: central differences).
+inline std::filesystem::path raycasterStore(VolumeSource& source, const std::string& name, int brickSize) {
+  return test::buildTestStore(source, "gl_raycaster_" + name, brickSize);
 }
 
 inline const std::filesystem::path& phantomStore() {
@@ -57,8 +52,7 @@ inline const std::filesystem::path& phantomStore() {
     options.dims = {96, 88, 72};
     options.spacingMm = {0.6, 0.55, 0.8};
     options.seed = 7;
-    const auto source = volume::makePhantom(options);
-    return buildTestStore(*source, "phantom", 16);
+    return test::buildPhantomTestStore(options, "gl_raycaster_phantom", 16);
   }();
   return path;
 }
@@ -71,7 +65,7 @@ inline const std::filesystem::path& rampStore() {
     test::MemoryVolume source({70, 50, 40}, [](int64_t i, int64_t j, int64_t k) {
       return static_cast<float>(-900 + 10 * i + 14 * j + 17 * k);
     });
-    return buildTestStore(source, "ramp", 16);
+    return raycasterStore(source, "ramp", 16);
   }();
   return path;
 }
@@ -85,25 +79,6 @@ inline Camera orbit(const volume::StoreReader& store, double azimuth, double ele
   o.projection = projection;
   o.zoom = zoom;
   return orbitCamera({store.layout().levelDims(store.layout().leafLevel()), store.patientFromIndex()}, o);
-}
-
-inline reference::RenderOptions referenceOptions(const RaycastOptions& o) {
-  reference::RenderOptions r;
-  r.mode = o.mode == RaycastMode::Iso ? RenderMode::Iso
-           : o.mode == RaycastMode::Mip ? RenderMode::Mip
-                                        : RenderMode::Dvr;
-  r.stepMm = o.stepMm;
-  r.earlyTermination = o.earlyTermination;
-  r.shading = o.shading == RaycastOptions::Shading::On    ? reference::RenderOptions::Shading::On
-              : o.shading == RaycastOptions::Shading::Off ? reference::RenderOptions::Shading::Off
-                                                          : reference::RenderOptions::Shading::FromTransferFunction;
-  r.gradientOpacity = o.gradientOpacity;
-  r.boundary.enabled = o.boundary.enabled;
-  r.boundary.kC = o.boundary.kC;
-  r.boundary.kS = o.boundary.kS;
-  r.boundary.kE = o.boundary.kE;
-  r.isoValue = o.isoValue;
-  return r;
 }
 
 inline int64_t nonFinite(const Frame& frame) {

@@ -17,9 +17,9 @@
 #include "octoray/gpu/reference/reference_renderer.h"
 #include "octoray/transfer/transfer_function_io.h"
 #include "octoray/volume/phantom.h"
-#include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"
+#include "test_stores.h"
 
 namespace octoray::gpu {
 namespace {
@@ -29,13 +29,7 @@ const std::filesystem::path& phantomStore() {
     volume::PhantomOptions options;
     options.dims = {96, 96, 80};
     options.spacingMm = {0.7, 0.7, 0.9};
-    const auto source = volume::makePhantom(options);
-    const std::filesystem::path store = test::freshTempDir("gl_image_adaptive") / "phantom.octoray";
-    volume::BuildOptions build;
-    build.brickSize = 16;
-    build.border = 2;
-    volume::buildStore(*source, store.string(), build);
-    return store;
+    return test::buildPhantomTestStore(options, "gl_image_adaptive", 16);
   }();
   return path;
 }

@@ -75,15 +75,6 @@ Camera view(const volume::StoreReader& store) {
   return orbitCamera({store.layout().levelDims(store.layout().leafLevel()), store.patientFromIndex()}, o);
 }
 
-reference::RenderOptions referenceOptions(const RaycastOptions& o) {
-  reference::RenderOptions r;
-  r.stepMm = o.stepMm;
-  r.earlyTermination = o.earlyTermination;
-  r.preintegration = o.preintegration;
-  r.jitter = o.jitter;
-  return r;
-}
-
 // Mean signed error of alpha against the truth over the pixels the truth covers.
 double meanAlphaBias(const Image& image, const Image& truth) {
   double sum = 0;

@@ -445,7 +445,7 @@ TEST_F(RaycasterTest, PhilipsHeadDvrIsoAndMipMatchTheReference) {
   const std::filesystem::path presets = test::sharedDir() / "data/presets/slicer/presets.xml";
   OCTORAY_REQUIRE_PATH(presets);
   const auto source = openVolume(series.string());
-  const std::filesystem::path path = buildTestStore(*source, "philips", 32);
+  const std::filesystem::path path = raycasterStore(*source, "philips", 32);
   const volume::StoreReader store(path.string());
   const transfer::TransferFunction tf =
       transfer::selectTransferFunction(transfer::loadTransferFunctions(presets.string()), "CT-Bone",
@@ -476,6 +476,65 @@ TEST_F(RaycasterTest, PhilipsHeadDvrIsoAndMipMatchTheReference) {
   EXPECT_EQ(ma.differ, 0) << "worst difference " << ma.worst << " HU";
 }
 
+// The options both renderers share carry over in each direction, field by field; the GPU's own
+// stay at their defaults when they come from the reference's.
+TEST(RaycastOptionsConversion, TheSharedOptionsCarryOverInEachDirection) {
+  for (const RaycastMode mode : {RaycastMode::Dvr, RaycastMode::Iso, RaycastMode::Mip}) {
+    RaycastOptions gpu;
+    gpu.mode = mode;
+    gpu.stepMm = 0.375;
+    gpu.earlyTermination = 0.95;
+    gpu.shading = mode == RaycastMode::Iso ? RaycastOptions::Shading::Off : RaycastOptions::Shading::On;
+    gpu.gradientOpacity = false;
+    gpu.boundary = {true, 0.25, 2.0, 0.5};
+    gpu.isoValue = 300;
+    gpu.preintegration = mode == RaycastMode::Dvr;
+    gpu.jitter = mode == RaycastMode::Mip;
+    gpu.silhouette = {true, 0.5, 1.0, 2.0};
+    gpu.lodPixels = 4;
+    gpu.imageAdaptive = 0.02;
+    gpu.clip.enabled = true;
+    const reference::RenderOptions cpu = referenceOptions(gpu);
+    EXPECT_EQ(cpu.mode, mode == RaycastMode::Dvr   ? RenderMode::Dvr
+                        : mode == RaycastMode::Iso ? RenderMode::Iso
+                                                   : RenderMode::Mip);
+    EXPECT_EQ(cpu.stepMm, 0.375);
+    EXPECT_EQ(cpu.earlyTermination, 0.95);
+    EXPECT_EQ(cpu.shading, mode == RaycastMode::Iso ? reference::RenderOptions::Shading::Off
+                                                    : reference::RenderOptions::Shading::On);
+    EXPECT_FALSE(cpu.gradientOpacity);
+    EXPECT_TRUE(cpu.boundary.enabled);
+    EXPECT_EQ(cpu.boundary.kC, 0.25);
+    EXPECT_EQ(cpu.boundary.kS, 2.0);
+    EXPECT_EQ(cpu.boundary.kE, 0.5);
+    EXPECT_EQ(cpu.isoValue, 300);
+    EXPECT_EQ(cpu.preintegration, mode == RaycastMode::Dvr);
+    EXPECT_EQ(cpu.jitter, mode == RaycastMode::Mip);
+
+    const RaycastOptions back = raycastOptions(cpu);
+    EXPECT_EQ(back.mode, mode);
+    EXPECT_EQ(back.stepMm, gpu.stepMm);
+    EXPECT_EQ(back.earlyTermination, gpu.earlyTermination);
+    EXPECT_EQ(back.shading, gpu.shading);
+    EXPECT_EQ(back.gradientOpacity, gpu.gradientOpacity);
+    EXPECT_EQ(back.boundary.enabled, gpu.boundary.enabled);
+    EXPECT_EQ(back.boundary.kC, gpu.boundary.kC);
+    EXPECT_EQ(back.boundary.kS, gpu.boundary.kS);
+    EXPECT_EQ(back.boundary.kE, gpu.boundary.kE);
+    EXPECT_EQ(back.isoValue, gpu.isoValue);
+    EXPECT_EQ(back.preintegration, gpu.preintegration);
+    EXPECT_EQ(back.jitter, gpu.jitter);
+    // What the reference does not have comes back at the GPU's defaults.
+    const RaycastOptions defaults;
+    EXPECT_FALSE(back.silhouette.enabled);
+    EXPECT_EQ(back.lodPixels, defaults.lodPixels);
+    EXPECT_EQ(back.imageAdaptive, defaults.imageAdaptive);
+    EXPECT_FALSE(back.clip.enabled);
+  }
+  // The shading that follows the transfer function's material, in each direction.
+  EXPECT_EQ(referenceOptions(RaycastOptions{}).shading, reference::RenderOptions::Shading::FromTransferFunction);
+  EXPECT_EQ(raycastOptions(reference::RenderOptions{}).shading, RaycastOptions::Shading::FromTransferFunction);
+}
 
 }  // namespace
 }  // namespace octoray::gpu

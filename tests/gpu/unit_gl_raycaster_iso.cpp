@@ -38,7 +38,7 @@ TEST_F(RaycasterTest, IsosurfaceThinnerThanTheStepIsFound) {
     test::MemoryVolume source({40, 36, 18}, [](int64_t, int64_t, int64_t k) {
       return k == 8 ? 1000.0f : 0.0f;
     });
-    return buildTestStore(source, "plate", 16);
+    return raycasterStore(source, "plate", 16);
   }();
   const volume::StoreReader store(path.string());
   RaycastOptions options;

@@ -38,6 +38,7 @@
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "test_paths.h"
+#include "test_stores.h"
 
 namespace octoray::gpu {
 namespace {
@@ -49,14 +50,7 @@ const std::filesystem::path& phantomStore() {
     options.dims = {128, 120, 96};
     options.spacingMm = {0.7, 0.75, 0.9};
     options.seed = 11;
-    const auto source = volume::makePhantom(options);
-    const std::filesystem::path dir = test::freshTempDir("gl_working_set");
-    const std::filesystem::path store = dir / "phantom.octoray";
-    volume::BuildOptions build;
-    build.brickSize = 16;
-    build.border = 2;
-    volume::buildStore(*source, store.string(), build);
-    return store;
+    return test::buildPhantomTestStore(options, "gl_working_set", 16);
   }();
   return path;
 }

@@ -33,6 +33,7 @@
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/image.h"
 #include "octoray/gpu/occlusion.h"
+#include "octoray/gpu/reference/reference_renderer.h"
 #include "octoray/gpu/spatial_index.h"
 #include "octoray/gpu/working_set.h"
 #include "octoray/transfer/transfer_function.h"
@@ -97,6 +98,14 @@ struct RaycastOptions {
     std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
   } clip;
 };
+
+// The options the raycaster shares with the CPU reference (mode, step, early termination,
+// shading, gradient opacity, boundary enhancement, iso value, pre-integration, jitter), in
+// each direction; the others keep their defaults (the reference has no silhouette, clip box,
+// image-plane adaptivity or level of detail). Tests render both through these, and
+// octoray-render parses the shared options once.
+reference::RenderOptions referenceOptions(const RaycastOptions& options);
+RaycastOptions raycastOptions(const reference::RenderOptions& options);
 
 struct FrameStats {
   double drawMs = 0;         // the raycasting pass, GPU finished
