@@ -406,46 +406,44 @@ const std::string& Raycaster::variantSource(const transfer::TransferFunction& tf
   return impl_->program(impl_->defines(tf, options, projection, false)).fragmentSourceWithDefines();
 }
 
+namespace {
+
+// The two renderers name their modes and shading overrides alike, in the same order.
+static_assert(static_cast<int>(RaycastMode::Dvr) == static_cast<int>(reference::RenderMode::Dvr) &&
+              static_cast<int>(RaycastMode::Iso) == static_cast<int>(reference::RenderMode::Iso) &&
+              static_cast<int>(RaycastMode::Mip) == static_cast<int>(reference::RenderMode::Mip));
+static_assert(static_cast<int>(RaycastOptions::Shading::FromTransferFunction) ==
+                  static_cast<int>(reference::RenderOptions::Shading::FromTransferFunction) &&
+              static_cast<int>(RaycastOptions::Shading::On) == static_cast<int>(reference::RenderOptions::Shading::On) &&
+              static_cast<int>(RaycastOptions::Shading::Off) == static_cast<int>(reference::RenderOptions::Shading::Off));
+
+// The fields both option types have, from one to the other (either direction).
+template <class To, class From>
+To sharedOptions(const From& from) {
+  To to;
+  to.mode = static_cast<decltype(to.mode)>(from.mode);
+  to.stepMm = from.stepMm;
+  to.earlyTermination = from.earlyTermination;
+  to.shading = static_cast<decltype(to.shading)>(from.shading);
+  to.gradientOpacity = from.gradientOpacity;
+  to.boundary.enabled = from.boundary.enabled;
+  to.boundary.kC = from.boundary.kC;
+  to.boundary.kS = from.boundary.kS;
+  to.boundary.kE = from.boundary.kE;
+  to.isoValue = from.isoValue;
+  to.preintegration = from.preintegration;
+  to.jitter = from.jitter;
+  return to;
+}
+
+}  // namespace
+
 reference::RenderOptions referenceOptions(const RaycastOptions& options) {
-  reference::RenderOptions r;
-  r.mode = options.mode == RaycastMode::Iso   ? reference::RenderMode::Iso
-           : options.mode == RaycastMode::Mip ? reference::RenderMode::Mip
-                                              : reference::RenderMode::Dvr;
-  r.stepMm = options.stepMm;
-  r.earlyTermination = options.earlyTermination;
-  r.shading = options.shading == RaycastOptions::Shading::On    ? reference::RenderOptions::Shading::On
-              : options.shading == RaycastOptions::Shading::Off ? reference::RenderOptions::Shading::Off
-                                                                : reference::RenderOptions::Shading::FromTransferFunction;
-  r.gradientOpacity = options.gradientOpacity;
-  r.boundary.enabled = options.boundary.enabled;
-  r.boundary.kC = options.boundary.kC;
-  r.boundary.kS = options.boundary.kS;
-  r.boundary.kE = options.boundary.kE;
-  r.isoValue = options.isoValue;
-  r.preintegration = options.preintegration;
-  r.jitter = options.jitter;
-  return r;
+  return sharedOptions<reference::RenderOptions>(options);
 }
 
 RaycastOptions raycastOptions(const reference::RenderOptions& options) {
-  RaycastOptions r;
-  r.mode = options.mode == reference::RenderMode::Iso   ? RaycastMode::Iso
-           : options.mode == reference::RenderMode::Mip ? RaycastMode::Mip
-                                                        : RaycastMode::Dvr;
-  r.stepMm = options.stepMm;
-  r.earlyTermination = options.earlyTermination;
-  r.shading = options.shading == reference::RenderOptions::Shading::On    ? RaycastOptions::Shading::On
-              : options.shading == reference::RenderOptions::Shading::Off ? RaycastOptions::Shading::Off
-                                                                          : RaycastOptions::Shading::FromTransferFunction;
-  r.gradientOpacity = options.gradientOpacity;
-  r.boundary.enabled = options.boundary.enabled;
-  r.boundary.kC = options.boundary.kC;
-  r.boundary.kS = options.boundary.kS;
-  r.boundary.kE = options.boundary.kE;
-  r.isoValue = options.isoValue;
-  r.preintegration = options.preintegration;
-  r.jitter = options.jitter;
-  return r;
+  return sharedOptions<RaycastOptions>(options);
 }
 
 void validateRaycast(const Camera& camera, const transfer::TransferFunction& tf,
