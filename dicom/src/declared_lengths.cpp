@@ -130,13 +130,19 @@ void checkDeclaredLengths(const std::string& path) {
   if (file.read(128, b, 4) && std::memcmp(b, "DICM", 4) == 0) {
     pos = 132;
   } else {
-    // A bare data set starts with a group length, the meta group or the identifying group,
-    // in either byte order. Anything else is not DICOM as far as this walk can tell: GDCM
-    // says so itself, and a length read from text would name a meaningless element.
-    if (!file.read(0, b, 2)) return;
+    // A bare data set: walked wherever GDCM would read one. GDCM reads a file without a
+    // preamble as DICOM when its first element is in the command, meta or identifying group
+    // (in either byte order), is a private creator (element 0x0010), or carries a VR code
+    // (a DICOMDIR's (0004,1200) UL, say: found by fuzz_dicomdir, whose 100-byte bare
+    // DICOMDIR then declared a 4 GiB implicit value). Anything else GDCM refuses itself, and
+    // a length read from text would name a meaningless element.
+    if (!file.read(0, b, 6)) return;
     const uint16_t little = u16(b, false), big = u16(b, true);
     const auto plausible = [](uint16_t group) { return group == 0 || group == 2 || group == 8; };
-    if (!plausible(little) && !plausible(big)) return;
+    const bool privateCreator = u16(b + 2, false) == 0x0010;
+    if (!plausible(little) && !plausible(big) && !privateCreator && !isVr(char(b[4]), char(b[5]))) {
+      return;
+    }
   }
 
   // The body's encoding: from the transfer syntax where the meta group names one.

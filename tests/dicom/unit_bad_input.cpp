@@ -540,6 +540,50 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
   EXPECT_EQ(scan.series[0].frames[0].path, (media / "IMG1").string());
 }
 
+// A DICOMDIR without preamble or meta group whose first element carries a VR code: GDCM
+// reads it as a bare data set, so the length walk must too. Found by fuzz_dicomdir: 100 bytes
+// starting (0004,1200) UL, then an element without a VR code declaring 4 GiB, which GDCM
+// allocated and cleared (a libFuzzer timeout and out-of-memory) because the walk had
+// skipped every file not starting in group 0000, 0002 or 0008.
+TEST(BadInputDicom, BareDicomdirWithAVrCodeIsWalkedForDeclaredLengths) {
+  const auto le16 = [](uint16_t v) { return std::string{char(v & 0xff), char(v >> 8)}; };
+  const auto le32 = [&](uint32_t v) { return le16(uint16_t(v & 0xffff)) + le16(uint16_t(v >> 16)); };
+  const auto tag = [&](uint16_t g, uint16_t e) { return le16(g) + le16(e); };
+  std::string bytes = tag(0x0004, 0x1200) + "UL" + le16(4) + le32(0) +  // offset of the first record
+                      tag(0x0004, 0x1202) + "UL" + le16(4) + le32(0) +  // offset of the last record
+                      tag(0x0004, 0x1400) + le32(uint32_t(1) << 30);    // no VR code: implicit, 1 GiB
+  bytes += std::string(64, '\0');
+  const std::string reason = "element (0004,1400) declares 1073741824 bytes but the file holds 64";
+
+  const auto media = test::freshTempDir("bare_dicomdir_length");
+  writeFile(media / "DICOMDIR", bytes);
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 2;
+  const auto series = test::freshTempDir("bare_dicomdir_series");
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(series, spec);
+  fs::copy_file(written.slices()[0].path, media / "IMG1");
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
+  const auto& warnings = scan.warnings;
+  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
+    return w.find("DICOMDIR could not be parsed") != std::string::npos &&
+           w.find(reason) != std::string::npos;
+  });
+  EXPECT_TRUE(named) << fmt::format("{}", fmt::join(warnings, "\n"));
+  ASSERT_EQ(scan.series.size(), 1u);  // IMG1, found by the search
+  EXPECT_EQ(scan.series[0].frames.size(), 1u);
+  const std::string file = (media / "DICOMDIR").string();
+  expectCleanError([&] { dicom::decodeDicomFile(file); }, {file, reason}, "decodeDicomFile");
+
+  // Text is still not walked: its bytes name no element, and GDCM refuses it itself.
+  writeFile(media / "notes.txt", "not an image, only notes about the study\n");
+  expectCleanError([&] { dicom::decodeDicomFile((media / "notes.txt").string()); },
+                   {(media / "notes.txt").string()}, "decodeDicomFile on text");
+  EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile((media / "notes.txt").string()); }, "text")
+                .find("declares"),
+            std::string::npos);
+}
+
 // Valid files the length walk must follow without refusing them (review of the walk): an
 // explicit-VR file whose private UN of undefined length holds implicit-VR content (CP-246),
 // with an implicit length whose low bytes spell a VR code ("DA"), read as explicit it would
