@@ -20,8 +20,7 @@ int runTool(const char* toolName, const std::function<int()>& body);
 
 // Waits, when it goes out of scope, for TBB's worker threads to end. Left to themselves they are
 // torn down by TBB's static destructors while LeakSanitizer's exit-time check is stopping every
-// thread, and its tracer then crashes now and then ("Tracer caught signal 11") after the
-// program did its work. runTool holds one; a main() that does not use runTool (the viewer's,
+// thread. runTool holds one; a main() that does not use runTool (the viewer's,
 // the tests') holds its own. The other library threads every program has, log4cplus's pool
 // that OpenVDB brings, are joined by an exit handler of cli_support.cpp.
 class WorkerThreadsJoinedAtExit {
