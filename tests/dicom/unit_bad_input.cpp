@@ -395,6 +395,23 @@ void expectOnlySkipped(const fs::path& dir, const fs::path& damaged, const std::
   if (scanOut) *scanOut = std::move(scan);
 }
 
+// Scans the DICOMDIR in `media` and checks that its records are given up with a warning naming
+// `reason` ("DICOMDIR could not be parsed: ..."), and that the folder search then finds its one
+// image, IMG1.
+void expectDicomdirSearchedInstead(const fs::path& media, const std::string& reason) {
+  dicom::DicomScan scan;
+  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
+  const auto& warnings = scan.warnings;
+  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
+    return w.find("DICOMDIR could not be parsed") != std::string::npos &&
+           w.find(reason) != std::string::npos;
+  });
+  EXPECT_TRUE(named) << fmt::format("{}", fmt::join(warnings, "\n"));
+  ASSERT_EQ(scan.series.size(), 1u);  // IMG1, found by the search
+  ASSERT_EQ(scan.series[0].frames.size(), 1u);
+  EXPECT_EQ(scan.series[0].frames[0].path, (media / "IMG1").string());
+}
+
 // Scans `dir` and checks that no file is skipped and that it holds one series of `frames` frames.
 void expectNothingSkipped(const fs::path& dir, std::size_t frames) {
   dicom::DicomScan scan;
@@ -527,17 +544,7 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
   const auto media = test::freshTempDir("bad_dicomdir_length");
   fs::copy_file(damaged, media / "DICOMDIR");
   fs::copy_file(written.slices()[0].path, media / "IMG1");
-  dicom::DicomScan scan;
-  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
-  const auto& warnings = scan.warnings;
-  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
-    return w.find("DICOMDIR could not be parsed") != std::string::npos &&
-           w.find(reason) != std::string::npos;
-  });
-  EXPECT_TRUE(named) << fmt::format("{}", fmt::join(warnings, "\n"));
-  ASSERT_EQ(scan.series.size(), 1u);  // IMG1, found by the search
-  EXPECT_EQ(scan.series[0].frames.size(), 1u);
-  EXPECT_EQ(scan.series[0].frames[0].path, (media / "IMG1").string());
+  expectDicomdirSearchedInstead(media, reason);
 }
 
 // A DICOMDIR without preamble or meta group whose first element carries a VR code: GDCM
@@ -562,16 +569,7 @@ TEST(BadInputDicom, BareDicomdirWithAVrCodeIsWalkedForDeclaredLengths) {
   const auto series = test::freshTempDir("bare_dicomdir_series");
   const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(series, spec);
   fs::copy_file(written.slices()[0].path, media / "IMG1");
-  dicom::DicomScan scan;
-  EXPECT_EQ(errorOf([&] { scan = dicom::scanDicom(media / "DICOMDIR"); }, "scanDicom"), "");
-  const auto& warnings = scan.warnings;
-  const bool named = std::any_of(warnings.begin(), warnings.end(), [&](const std::string& w) {
-    return w.find("DICOMDIR could not be parsed") != std::string::npos &&
-           w.find(reason) != std::string::npos;
-  });
-  EXPECT_TRUE(named) << fmt::format("{}", fmt::join(warnings, "\n"));
-  ASSERT_EQ(scan.series.size(), 1u);  // IMG1, found by the search
-  EXPECT_EQ(scan.series[0].frames.size(), 1u);
+  expectDicomdirSearchedInstead(media, reason);
   const std::string file = (media / "DICOMDIR").string();
   expectCleanError([&] { dicom::decodeDicomFile(file); }, {file, reason}, "decodeDicomFile");
 
