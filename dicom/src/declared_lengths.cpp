@@ -141,6 +141,17 @@ void checkDeclaredLengths(const std::string& path) {
     const auto plausible = [](uint16_t group) { return group == 0 || group == 2 || group == 8; };
     const bool privateCreator = u16(b + 2, false) == 0x0010;
     if (!plausible(little) && !plausible(big) && !privateCreator && !isVr(char(b[4]), char(b[5]))) {
+      // Not DICOM by any of those signs. GDCM still reads the first element as implicit VR
+      // little endian before it gives up, and on some such files (one starting (FF00,0000),
+      // found by fuzz_dicomdir) then allocates what its length says: 1.7 GB for 132 bytes.
+      // That one length is checked; the rest is GDCM's to refuse.
+      const uint32_t length = u32(b + 4, false);
+      if (length != kUndefinedLength && length > size - 8) {
+        throw Error(path, fmt::format("not a DICOM file (no preamble; read as a bare data set, "
+                                      "its first element {} would declare {} bytes, the file "
+                                      "holds {} after it)",
+                                      tagName(u16(b, false), u16(b + 2, false)), length, size - 8));
+      }
       return;
     }
   }
