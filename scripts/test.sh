@@ -23,11 +23,11 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${line_tabl
   -DOCTORAY_BUILD_BENCHMARKS=OFF
 cmake --build build-asan -j "$jobs"
 # intercept_tls_get_addr=0: LeakSanitizer's exit-time tracer ("Tracer caught signal 11" after
-# every check passed, no leak reported) read outside a dynamic TLS block. Clang 14's runtime
-# takes a block whose address is 16 bytes past a page boundary for glibc 2.19's, and reads the
-# two words before it as that block's start and size; since glibc 2.25 there is no such header,
-# and a malloc'd block lands there by chance, so it came and went with the address layout
-# (google/sanitizers#1322). Without the interceptor LSan does not scan the dynamic TLS of
+# every check passed, no leak reported) read outside a dynamic TLS block. GCC 12's libasan (as
+# clang 14's runtime) takes a block 16 bytes past a page boundary for glibc 2.19's, and reads
+# the two words before it as that block's start and size; since glibc 2.25 there is no such
+# header, and a malloc'd block lands there by chance, so it came and went with the address
+# layout (google/sanitizers#1322). Without the interceptor LSan does not scan the dynamic TLS of
 # dlopen'd libraries (Mesa's driver) as roots; no test needs it to.
 export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:intercept_tls_get_addr=0
 export UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
