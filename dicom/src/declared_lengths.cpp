@@ -134,8 +134,8 @@ void checkDeclaredLengths(const std::string& path) {
     // preamble as DICOM when its first element is in the command, meta or identifying group
     // (in either byte order), is a private creator (element 0x0010), or carries a VR code
     // (a DICOMDIR's (0004,1200) UL, say: found by fuzz_dicomdir, whose 100-byte bare
-    // DICOMDIR then declared a 4 GiB implicit value). Anything else GDCM refuses itself, and
-    // a length read from text would name a meaningless element.
+    // DICOMDIR then declared a 4 GiB implicit value). Anything else is not walked: a length
+    // read from text would name a meaningless element.
     if (!file.read(0, b, 6)) return;
     const uint16_t little = u16(b, false), big = u16(b, true);
     const auto plausible = [](uint16_t group) { return group == 0 || group == 2 || group == 8; };

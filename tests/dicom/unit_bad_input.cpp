@@ -395,6 +395,11 @@ void expectOnlySkipped(const fs::path& dir, const fs::path& damaged, const std::
   if (scanOut) *scanOut = std::move(scan);
 }
 
+// Little-endian bytes of a 16- and a 32-bit value, and of a tag, for hand-made data sets.
+std::string le16(uint16_t v) { return std::string{char(v & 0xff), char(v >> 8)}; }
+std::string le32(uint32_t v) { return le16(uint16_t(v & 0xffff)) + le16(uint16_t(v >> 16)); }
+std::string tag(uint16_t group, uint16_t element) { return le16(group) + le16(element); }
+
 // Scans the DICOMDIR in `media` and checks that its records are given up with a warning naming
 // `reason` ("DICOMDIR could not be parsed: ..."), and that the folder search then finds its one
 // image, IMG1.
@@ -553,9 +558,6 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
 // allocated and cleared (a libFuzzer timeout and out-of-memory) because the walk had
 // skipped every file not starting in group 0000, 0002 or 0008.
 TEST(BadInputDicom, BareDicomdirWithAVrCodeIsWalkedForDeclaredLengths) {
-  const auto le16 = [](uint16_t v) { return std::string{char(v & 0xff), char(v >> 8)}; };
-  const auto le32 = [&](uint32_t v) { return le16(uint16_t(v & 0xffff)) + le16(uint16_t(v >> 16)); };
-  const auto tag = [&](uint16_t g, uint16_t e) { return le16(g) + le16(e); };
   std::string bytes = tag(0x0004, 0x1200) + "UL" + le16(4) + le32(0) +  // offset of the first record
                       tag(0x0004, 0x1202) + "UL" + le16(4) + le32(0) +  // offset of the last record
                       tag(0x0004, 0x1400) + le32(uint32_t(1) << 30);    // no VR code: implicit, 1 GiB
@@ -596,11 +598,6 @@ TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) 
     std::ifstream in(path, std::ios::binary);
     return std::string(std::istreambuf_iterator<char>(in), {});
   };
-  const auto le16 = [](uint16_t v) { return std::string{char(v & 0xff), char(v >> 8)}; };
-  const auto le32 = [&](uint32_t v) {
-    return le16(uint16_t(v & 0xffff)) + le16(uint16_t(v >> 16));
-  };
-  const auto tag = [&](uint16_t g, uint16_t e) { return le16(g) + le16(e); };
   {
     const auto dir = test::freshTempDir("lengths_un_implicit");
     dicom::SyntheticSeriesSpec spec;
