@@ -9,9 +9,12 @@
 #       occlusion  --visibility occlusion
 #       both       --visibility both
 #       rays-nobudget   --visibility rays --upload-mib-per-frame 0 (unlimited)
-#     REPEATS runs each (OTHER_REPEATS for occlusion, both and rays-nobudget): median and p95 frame time, time to first image, time to the
-#     converged image after the camera stops, bytes read, peak RSS, final working set; the
-#     per-phase split of the frame (select, upload, raycast, feedback) from the first run.
+#       rays-repack     --visibility rays --repack-when-settled (the viewer's setting: the
+#                       settled cut copied to the pool's first slots in node order)
+#     REPEATS runs each (OTHER_REPEATS for the others): median and p95 frame time, time to first image, time to the
+#     converged image after the camera stops, bytes read, peak RSS, final working set, the
+#     bricks a repack copied and its time; the per-phase split of the frame (select, upload,
+#     raycast, feedback) from the first run.
 #  2. Convergence: the last frame of the first `rays` run against the CPU reference rendered
 #     over the same LOD cut (--cut-reference: only the cut's bricks are read, so it works where
 #     the full-resolution reference, 17 GiB of floats here, cannot), and against a still
@@ -28,7 +31,7 @@
 # Environment: SCALE=full|small  (full: a 2048x2048x1024 octoray-phantom, 8 GiB of samples,
 #   300 + 60 frames at 512x512; small: 256x256x192, 40 + 20 frames at 128x128, seconds)
 #   STORE=PATH (reuse a store instead of building the phantom)  POOL_MIB=512  CACHE_MIB=2048
-#   VIS_POOL_MIB=4096  ZOOMS="4 6"  CONFIGS="rays none occlusion both rays-nobudget"
+#   VIS_POOL_MIB=4096  ZOOMS="4 6"  CONFIGS="rays none occlusion both rays-nobudget rays-repack"
 #   OCTORAY_SHARED (default: ../shared beside the repository; step 4 is skipped without it)
 # Output: OUT_DIR/results.md (tables), OUT_DIR/results.jsonl (one object per row), and the
 # reports, per-frame statistics (CSV) and images of every run.
@@ -49,7 +52,7 @@ pool=${POOL_MIB:-512}
 cache=${CACHE_MIB:-2048}
 vis_pool=${VIS_POOL_MIB:-4096}
 zooms=${ZOOMS:-4 6}
-configs=${CONFIGS:-rays none occlusion both rays-nobudget}
+configs=${CONFIGS:-rays none occlusion both rays-nobudget rays-repack}
 bin=$build/bin
 py=/usr/bin/python3
 case $scale in
@@ -92,8 +95,11 @@ EOF
 path="orbit:$frames,degrees:180,zoom-from:1,zoom-to:6,still:$still"
 for config in $configs; do
   visibility=${config%-nobudget}
+  visibility=${visibility%-repack}
   budget=64
   [[ $config == *-nobudget ]] && budget=0
+  repack=()
+  [[ $config == *-repack ]] && repack=(--repack-when-settled)
   runs=$repeats
   [[ $config == rays || $config == none ]] || runs=${OTHER_REPEATS:-$repeats}
   for ((r = 1; r <= runs; ++r)); do
@@ -104,9 +110,9 @@ for config in $configs; do
     [[ $visibility == rays && $r == 1 && $budget == 64 ]] && cut_reference=(--cut-reference "$dir/cut-reference.png")
     "$bin/octoray-render" "$store" -o "$dir/last.png" --preset bone --size "$size" --path "$path" \
       --visibility "$visibility" --upload-mib-per-frame "$budget" --pool-mib "$pool" \
-      --cache-mib "$cache" --stats "$dir/frames.csv" --save-camera "$dir/camera.json" --json "${cut_reference[@]}" \
+      --cache-mib "$cache" --stats "$dir/frames.csv" --save-camera "$dir/camera.json" --json "${cut_reference[@]}" "${repack[@]}" \
       > "$dir/report.json" 2> "$dir/stderr.txt"
-    if [[ $visibility == rays && $r == 1 ]]; then
+    if [[ $config == rays && $r == 1 ]]; then
       # 2. Convergence: the still render of the last camera, feedback off, same LOD.
       "$bin/octoray-render" "$store" -o "$dir/still.png" --preset bone --camera "$dir/camera.json" \
         --visibility none --pool-mib "$vis_pool" --cache-mib "$cache" > /dev/null
@@ -161,21 +167,22 @@ def db(v):  # octoray-compare reports identical images as an infinite PSNR (null
 lines = [f"Run {datetime.date.today()} on {platform.node()} ({os.cpu_count()} cores), "
          f"`{command}`; store `{os.path.basename(store)}`, path `{path}` at {size}, "
          f"--pool-mib {pool} --cache-mib {cache}; medians of the runs counted in each row.", ""]
-lines += ["| config (runs) | median ms | p95 ms | first image ms | converged after stop ms | MiB read | peak RSS MiB | final bricks | select / upload / raycast / feedback ms (median frame) |",
-          "|---|---|---|---|---|---|---|---|---|"]
+lines += ["| config (runs) | median ms | p95 ms | first image ms | converged after stop ms | MiB read | peak RSS MiB | final bricks | select / upload / raycast / feedback ms (median frame) | repack: bricks, ms |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
 with open(results, "a") as jl:
     for config_dir in sorted(glob.glob(f"{out}/path/*")):
         config = os.path.basename(config_dir)
         reports = [json.load(open(f)) for f in sorted(glob.glob(f"{config_dir}/run*/report.json"))]
         if not reports:
             continue
-        row = {k: med([r[k] for r in reports]) for k in ["medianMs", "p95Ms", "firstImageMs", "convergedAfterStopMs", "bytesRead", "peakRssMib", "finalWorkingSetBricks"]}
+        row = {k: med([r[k] for r in reports]) for k in ["medianMs", "p95Ms", "firstImageMs", "convergedAfterStopMs", "bytesRead", "peakRssMib", "finalWorkingSetBricks", "bricksRepacked", "repackMs"]}
         frames = list(csv.DictReader(open(f"{config_dir}/run1/frames.csv")))
         phases = [med([float(f[k]) for f in frames]) for k in ["selectMs", "uploadMs", "drawMs", "feedbackMs"]]
         jl.write(json.dumps({"part": "path", "config": config, **row, "phases": phases}) + "\n")
         lines.append(f"| {config} ({len(reports)}) | {fmt(row['medianMs'])} | {fmt(row['p95Ms'])} | {fmt(row['firstImageMs'])} | "
                      f"{fmt(row['convergedAfterStopMs'])} | {fmt(row['bytesRead'] / 2**20, 1)} | {fmt(row['peakRssMib'])} | "
-                     f"{fmt(row['finalWorkingSetBricks'])} | {' / '.join(fmt(p, 1) for p in phases)} |")
+                     f"{fmt(row['finalWorkingSetBricks'])} | {' / '.join(fmt(p, 1) for p in phases)} | "
+                     f"{fmt(row['bricksRepacked']) + ', ' + fmt(row['repackMs'], 1) if row['bricksRepacked'] else '—'} |")
     for compare in sorted(glob.glob(f"{out}/path/rays/run1/compare.json")):
         c = json.load(open(compare))
         lines += ["", f"Converged `rays` path frame against the still render of its camera with feedback off: PSNR {db(c['psnrDb'])} dB, SSIM {c['ssim']:.4f}."]

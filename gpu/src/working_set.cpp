@@ -271,7 +271,10 @@ bool WorkingSet::repack() {
     if (!upload(*brick)) throw std::logic_error("working set: an emptied pool refused a brick");
   }
   for (std::size_t i = 0; i < cut_.size(); ++i) cut_[i].slot = static_cast<uint32_t>(pool_.slotOf(dataOfLeaf[i]));
-  stats_.uploadMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  stats_.uploadMs += ms;
+  stats_.repackMs += ms;
+  stats_.repacked += static_cast<int64_t>(bricks.size());
   return true;
 }
 

@@ -9,6 +9,7 @@
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
+//      [--repack-when-settled]
 //      [--path orbit:N[,...]|FILE.json [--stats OUT.csv|OUT.json]]
 //      [--boundary KC,KS,KE] [--silhouette KC,KS,KE] [--clip I0,J0,K0,I1,J1,K1]
 //      [--cut-reference REF.png]]  (the CPU reference over the GPU picture's LOD cut)
@@ -316,6 +317,8 @@ nlohmann::json frameRecord(const gpu::Frame& frame, double ms) {
           {"bytesRead", s.bytesRead},
           {"bricksUploaded", s.bricksUploaded},
           {"bytesUploaded", w.uploadBytes},
+          {"repacked", w.repacked},
+          {"repackMs", w.repackMs},
           {"poolSlots", s.poolSlots},
           {"poolSlotsUsed", s.poolSlotsUsed},
           {"poolBytes", s.poolBytes},
@@ -423,6 +426,7 @@ int runGpu(const Arguments& a) {
   config.uploadBytesPerFrame = a.uploadMibPerFrame << 20;
   config.visibility = gpu::parseVisibility(a.visibility);
   config.visibilityThreshold = a.visibilityThreshold;
+  config.repackWhenSettled = a.repackWhenSettled;
   gpu::GpuRenderer renderer(store, config);
   const double setupMs = millisecondsSince(start);
   if (!a.cameraPath.empty()) return runPath(a, store, renderer, tf, options, domain, *context, loadMs + setupMs);
@@ -687,6 +691,9 @@ int main(int argc, char** argv) {
   app.add_flag("--frustum-cut", a.frustumCut,
                "reference, store: read only the leaf bricks in the camera's view (the truth of a "
                "zoomed view of a store too large for memory; the same picture)");
+  app.add_flag("--repack-when-settled", a.repackWhenSettled,
+               "GPU: once the working set settles, move its bricks to the pool's first slots in node "
+               "order, as the viewer does (the same view is then the same picture whatever the history)");
   app.add_option("--cut-reference", a.cutReference,
                  "GPU: also render the CPU reference over the LOD cut of the GPU picture (the last "
                  "frame of --path) to this PNG and report their agreement (DVR and iso)");
@@ -724,7 +731,8 @@ int main(int argc, char** argv) {
                                   "--no-cell-skipping", "--mip", "--cache-mib",
                                   "--upload-mib-per-frame", "--visibility",
                                   "--visibility-threshold", "--path", "--stats",
-                                  "--image-adaptive", "--image-adaptive-levels"}) {
+                                  "--image-adaptive", "--image-adaptive-levels",
+                                  "--repack-when-settled"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

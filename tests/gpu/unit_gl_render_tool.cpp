@@ -390,5 +390,55 @@ TEST_F(GpuRenderTool, CameraPathStreamsAndReportsEveryFrame) {
   }
 }
 
+// --repack-when-settled (the viewer's setting): once the camera stops and the working set
+// settles, one frame copies the cut's bricks (and the root) to the pool's first slots and
+// reports what it copied and the time; later frames find them in place and copy nothing.
+// Without the flag no frame repacks.
+TEST_F(GpuRenderTool, RepackWhenSettledReportsTheCopyOnce) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const auto run = [&](bool repack) {
+    std::vector<std::string> args{render, store, "-o", (dir / "repack.png").string(), "--preset", "bone",
+                                  "--size", "64x64", "--lod-pixels", "0", "--path",
+                                  "orbit:6,degrees:90,zoom-from:1,zoom-to:2,still:16", "--json"};
+    if (repack) args.push_back("--repack-when-settled");
+    const ProcessResult r = runProcess(args);
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    return nlohmann::json::parse(r.out);
+  };
+  const auto plain = run(false);
+  EXPECT_FALSE(plain["repackWhenSettled"].get<bool>());
+  EXPECT_EQ(plain["bricksRepacked"], 0);
+  EXPECT_TRUE(plain["lastRepackAtFrame"].is_null());
+  for (const auto& f : plain["frames"]) EXPECT_EQ(f["repacked"], 0);
+
+  const auto repacked = run(true);
+  ASSERT_TRUE(repacked["converged"].get<bool>()) << "16 still frames converge this small store";
+  EXPECT_TRUE(repacked["repackWhenSettled"].get<bool>());
+  const int64_t bricks = repacked["finalWorkingSetBricks"].get<int64_t>();
+  ASSERT_GT(bricks, 1);
+  int repackFrames = 0;
+  for (const auto& f : repacked["frames"]) {
+    const int64_t n = f["repacked"].get<int64_t>();
+    if (n == 0) {
+      EXPECT_EQ(f["repackMs"].get<double>(), 0.0);
+      continue;
+    }
+    ++repackFrames;
+    // The cut's bricks and the root, which is resident for good even where no seen leaf
+    // draws from it; counted in the frame's uploads too.
+    EXPECT_GE(n, bricks);
+    EXPECT_LE(n, bricks + 1);
+    EXPECT_GE(f["bricksUploaded"].get<int64_t>(), n);
+    EXPECT_GT(f["repackMs"].get<double>(), 0.0);
+    EXPECT_LE(f["repackMs"].get<double>(), f["uploadMs"].get<double>());
+    EXPECT_GE(f["frame"].get<int64_t>(), repacked["cameraStopsAtFrame"].get<int64_t>())
+        << "a moving camera never settles";
+  }
+  EXPECT_EQ(repackFrames, 1) << "a repacked cut stays in place while the view holds still";
+  EXPECT_EQ(repacked["lastRepackAtFrame"], repacked["convergedAtFrame"]);
+  EXPECT_GT(repacked["repackMs"].get<double>(), 0.0);
+}
+
 }  // namespace
 }  // namespace octoray::gpu

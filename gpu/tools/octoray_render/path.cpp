@@ -86,6 +86,9 @@ int runPath(const Arguments& a, const volume::StoreReader& store, gpu::GpuRender
   std::optional<std::size_t> convergedFrame;
   double sinceStopMs = 0;
   uint64_t bytesRead = 0, maxCacheBytes = 0;
+  int64_t repacked = 0;
+  double repackMs = 0;
+  std::optional<std::size_t> repackedAtFrame;
   for (std::size_t f = 0; f < cameras.size(); ++f) {
     const auto t0 = std::chrono::steady_clock::now();
     last = renderer.renderFrame(cameras[f], tf, options);
@@ -93,6 +96,11 @@ int runPath(const Arguments& a, const volume::StoreReader& store, gpu::GpuRender
     framesMs.push_back(ms);
     frames.push_back(frameRecord(last, ms));
     bytesRead += last.stats.bytesRead;
+    if (last.stats.workingSet.repacked > 0) {
+      repacked += last.stats.workingSet.repacked;
+      repackMs += last.stats.workingSet.repackMs;
+      repackedAtFrame = f;
+    }
     maxCacheBytes = std::max(maxCacheBytes, last.stats.cacheBytes);
     for (const std::string& e : last.stats.errors) {
       fmt::print(stderr, "octoray-render: {}\n", e);
@@ -140,6 +148,10 @@ int runPath(const Arguments& a, const volume::StoreReader& store, gpu::GpuRender
         {"maxCacheBytes", maxCacheBytes},
         {"peakRssMib", peak},
         {"finalWorkingSetBricks", last.stats.workingSetBricks},
+        {"repackWhenSettled", a.repackWhenSettled},
+        {"bricksRepacked", repacked},
+        {"repackMs", repackMs},
+        {"lastRepackAtFrame", repackedAtFrame ? nlohmann::json(*repackedAtFrame) : nlohmann::json(nullptr)},
         {"converged", convergedMs.has_value()},
         {"cutReference", cutCheck},
         {"errors", errors},

@@ -33,6 +33,7 @@ struct Arguments {
   double azimuth = 0, elevation = 0, zoom = 1, fovY = 30, stepMm = 0, earlyTermination = 0.99;
   bool reference = false, gpu = false, json = false, srgb = false, noGradientOpacity = false;
   bool gradientPool = false, noCellSkipping = false, jitter = false, converge = false;
+  bool repackWhenSettled = false;  // GPU: RendererConfig::repackWhenSettled, as the viewer runs
   std::string preintegration = "off", imageAdaptive = "off";
   int imageAdaptiveLevels = 2;
   double convergeMaxChange = 1.0 / 1024, convergePsnr = 70;

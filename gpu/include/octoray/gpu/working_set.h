@@ -125,6 +125,10 @@ struct WorkingSetStats {
   int64_t uploaded = 0;           // bricks copied from the CPU cache to the pool
   uint64_t uploadBytes = 0;
   double selectMs = 0, uploadMs = 0;
+  // Of those, what repack() copied this frame (0 unless it moved the cut), and its time:
+  // included in uploaded, uploadBytes and uploadMs.
+  int64_t repacked = 0;
+  double repackMs = 0;
 };
 
 class WorkingSet {
