@@ -107,7 +107,7 @@ for config in $configs; do
     mkdir -p "$dir"
     echo "== path $config, run $r"
     cut_reference=()
-    [[ $visibility == rays && $r == 1 && $budget == 64 ]] && cut_reference=(--cut-reference "$dir/cut-reference.png")
+    [[ $config == rays && $r == 1 ]] && cut_reference=(--cut-reference "$dir/cut-reference.png")
     "$bin/octoray-render" "$store" -o "$dir/last.png" --preset bone --size "$size" --path "$path" \
       --visibility "$visibility" --upload-mib-per-frame "$budget" --pool-mib "$pool" \
       --cache-mib "$cache" --stats "$dir/frames.csv" --save-camera "$dir/camera.json" --json "${cut_reference[@]}" "${repack[@]}" \
