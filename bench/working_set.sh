@@ -64,6 +64,8 @@ for tool in octoray-phantom octoray-import octoray-render octoray-compare; do
   [[ -x $bin/$tool ]] || { echo "$0: $bin/$tool is missing" >&2; exit 1; }
 done
 mkdir -p "$out"
+# A reused OUT_DIR keeps its stores (built once), never an earlier run's images or reports.
+rm -rf "$out/path" "$out/visibility"
 results=$out/results.jsonl
 : > "$results"
 

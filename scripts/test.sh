@@ -16,8 +16,13 @@ jobs=$(nproc)
 section() { echo "== [${SECONDS} s] $*"; }
 # The sanitizer and fuzzing builds keep line tables only (-g1): reports still name function,
 # file and line, and a compile takes 0.69x the time of full debug info (octoray_render.cpp
-# under ASan: 99 s with -g, 69 s with -g1, 2026-12-04).
+# under ASan: 99 s with -g, 69 s with -g1, 2026-12-04). The ASan build, which runs every test,
+# optimises the libraries at -O2 and the test programs and tools' front ends at -O1
+# (CMakeLists.txt's octoray_front_end); the ThreadSanitizer build, a dozen threaded tests, and
+# the fuzzing build are at -O1 throughout, as OSS-Fuzz builds its fuzzers (its default CFLAGS:
+# -O1 -fno-omit-frame-pointer -gline-tables-only).
 line_tables=(-DCMAKE_C_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG" -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG")
+o1_line_tables=(-DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG")
 section "AddressSanitizer + UndefinedBehaviorSanitizer build and tests"
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${line_tables[@]}" -DOCTORAY_SANITIZE=ON \
   -DOCTORAY_BUILD_BENCHMARKS=OFF
@@ -36,7 +41,7 @@ unset ASAN_OPTIONS UBSAN_OPTIONS
 section "ThreadSanitizer: the brick loader, the caches and the working set"
 # A separate build: the loader's threads, the cache they fill and the working set that polls,
 # requests, cancels and shuts them down mid-load, with every data race an error.
-cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${line_tables[@]}" -DOCTORAY_TSAN=ON \
+cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${o1_line_tables[@]}" -DOCTORAY_TSAN=ON \
   -DOCTORAY_BUILD_BENCHMARKS=OFF
 cmake --build build-tsan -j "$jobs" --target volume_unit_tests gpu_gl_tests
 # On one CPU (taskset): Debian's libtbb is not instrumented, so TSan cannot see its task
@@ -49,7 +54,7 @@ taskset -c 0 build-tsan/bin/volume_unit_tests --gtest_filter='BrickLoader*:Brick
 OCTORAY_REQUIRE_GL=1 taskset -c 0 build-tsan/bin/gpu_gl_tests --gtest_filter='WorkingSetTest.*:-WorkingSetTest.RealHeadsMeetTheRelativeBar'
 unset TSAN_OPTIONS
 section "libFuzzer: store reader 60 s; volume headers, raw options, transfer functions, DICOMDIR, JSON documents 20-25 s each (ASan + UBSan)"
-CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${line_tables[@]}" \
+CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo "${o1_line_tables[@]}" \
   -DOCTORAY_FUZZ=ON -DOCTORAY_BUILD_TESTS=OFF -DOCTORAY_BUILD_BENCHMARKS=OFF
 fuzz_targets=(fuzz_store_reader fuzz_volume_headers fuzz_raw_options fuzz_transfer_functions fuzz_dicomdir
               fuzz_json_documents)
