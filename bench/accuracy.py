@@ -361,6 +361,8 @@ def parse():
         args.view_list = [int(v) for v in args.views.split(",") if v.strip()]
     else:
         args.view_list = list(range(int(args.views)))
+    if not args.view_list:
+        p.error(f"--views {args.views} selects no view: give a count (1 is view 0 alone) or a list such as 1,2")
     if any(v < 0 or v >= len(VIEWS) for v in args.view_list):
         p.error(f"--views: views are 0..{len(VIEWS) - 1}")
     if args.quick:
