@@ -8,18 +8,31 @@
 // OCTORAY_GDCM_VETTER naming its socket: a constructor below turns it into the vetter before
 // main() runs. A fork() would copy a multithreaded process whose other threads may hold locks
 // (the allocator's, GDCM's, TBB's) and could deadlock the child.
+//
+// A file GDCM does not finish parsing in time (OCTORAY_DICOM_PARSE_TIMEOUT seconds, 120 by
+// default: the slowest file we know, pydicom's SC_rgb_jpeg.dcm, takes 5-8 s here) is refused
+// as a hang: its child is killed, and the parent never parses it, since it would hang too.
 
 #include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
 #include <gdcmImageReader.h>
 #include <spawn.h>
+#include <fmt/format.h>
 #include <gdcmReader.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <memory>
@@ -35,6 +48,37 @@ namespace {
 
 constexpr const char* kVetterVariable = "OCTORAY_GDCM_VETTER";
 constexpr int kChildFd = 3;
+constexpr const char* kTimeoutVariable = "OCTORAY_DICOM_PARSE_TIMEOUT";
+constexpr double kDefaultTimeoutSeconds = 120.0;
+
+// Seconds the child may take on one file: the variable where it holds a positive number.
+double parseTimeoutSeconds(const std::string& path) {
+  const char* text = std::getenv(kTimeoutVariable);
+  if (!text || !*text) return kDefaultTimeoutSeconds;
+  char* end = nullptr;
+  const double seconds = std::strtod(text, &end);
+  if (end == text || *end != '\0' || !std::isfinite(seconds) || seconds <= 0.0) {
+    throw Error(path, fmt::format("{} is '{}', not a positive number of seconds for how long GDCM "
+                                  "may parse one DICOM file", kTimeoutVariable, text));
+  }
+  return seconds;
+}
+
+// Waits until `fd` is readable (data or end of file) or `seconds` (at most 1e7: about 4 months)
+// have passed: false on timeout.
+bool readableWithin(int fd, double seconds) {
+  using Clock = std::chrono::steady_clock;
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                           std::chrono::duration<double>(std::min(seconds, 1e7)));
+  while (true) {
+    const auto left = std::chrono::ceil<std::chrono::milliseconds>(deadline - Clock::now()).count();
+    if (left <= 0) return false;
+    pollfd p{fd, POLLIN, 0};
+    const int n = ::poll(&p, 1, static_cast<int>(std::min<long long>(left, 1 << 30)));
+    if (n > 0) return true;
+    if (n < 0 && errno != EINTR) return true;  // the read that follows reports the failure
+  }
+}
 
 bool sendAll(int fd, const void* data, std::size_t bytes) {
   const auto* p = static_cast<const char*>(data);
@@ -131,17 +175,25 @@ class Vetter {
     pid_ = -1;
   }
 
-  // True when GDCM survives parsing `path` (whether or not it understood it).
-  bool survives(const std::string& path) {
+  enum class Outcome { Survived, Died, TimedOut };
+
+  // Whether GDCM survives parsing `path` (whether or not it understood it) within `seconds`.
+  Outcome parse(const std::string& path, double seconds) {
     if (pid_ < 0) start(path);
     const auto length = static_cast<uint32_t>(path.size());
     uint8_t status = 0;
-    if (sendAll(fd_, &length, sizeof length) && sendAll(fd_, path.data(), path.size()) &&
-        receiveAll(fd_, &status, 1)) {
-      return true;
+    if (!sendAll(fd_, &length, sizeof length) || !sendAll(fd_, path.data(), path.size())) {
+      stop();  // the child died; the next call starts a fresh one
+      return Outcome::Died;
     }
+    if (!readableWithin(fd_, seconds)) {
+      ::kill(pid_, SIGKILL);  // stuck in GDCM: it cannot be asked to stop
+      stop();
+      return Outcome::TimedOut;
+    }
+    if (receiveAll(fd_, &status, 1)) return Outcome::Survived;
     stop();  // the child died on this file; the next call starts a fresh one
-    return false;
+    return Outcome::Died;
   }
 
  private:
@@ -199,10 +251,46 @@ std::vector<std::unique_ptr<Vetter>>& pool() {
   return *idle;
 }
 
+// Files that timed out, so that a second look at one (the DICOMDIR walk, then the header read)
+// does not wait out the limit again; keyed by path, size and modification time.
+struct TimedOutFile {
+  std::uintmax_t size = 0;
+  std::filesystem::file_time_type modified;
+  double seconds = 0.0;
+};
+std::map<std::string, TimedOutFile>& timedOut() {
+  static auto* files = new std::map<std::string, TimedOutFile>();
+  return *files;
+}
+
+std::optional<TimedOutFile> stamp(const std::string& path, double seconds) {
+  std::error_code error;
+  TimedOutFile file{std::filesystem::file_size(path, error), {}, seconds};
+  if (error) return std::nullopt;
+  file.modified = std::filesystem::last_write_time(path, error);
+  if (error) return std::nullopt;
+  return file;
+}
+
+std::string timeoutReason(double seconds) {
+  return fmt::format("the GDCM parser did not finish reading it in {:g} s ({} sets the limit)",
+                     seconds, kTimeoutVariable);
+}
+
 }  // namespace
 
 void vetWithGdcm(const std::string& path) {
   checkDeclaredLengths(path);
+  const double seconds = parseTimeoutSeconds(path);
+  const std::optional<TimedOutFile> now = stamp(path, seconds);
+  {
+    std::lock_guard lock(gPoolMutex);
+    const auto before = timedOut().find(path);
+    if (before != timedOut().end() && now && before->second.size == now->size &&
+        before->second.modified == now->modified && seconds <= before->second.seconds) {
+      throw Error(path, timeoutReason(before->second.seconds));
+    }
+  }
   std::unique_ptr<Vetter> vetter;
   {
     std::lock_guard lock(gPoolMutex);
@@ -216,12 +304,21 @@ void vetWithGdcm(const std::string& path) {
     vetter.reset();
   }
   if (!vetter) vetter = std::make_unique<Vetter>();
-  const bool survived = vetter->survives(path);
+  const Vetter::Outcome outcome = vetter->parse(path, seconds);
   {
     std::lock_guard lock(gPoolMutex);
     pool().push_back(std::move(vetter));
   }
-  if (!survived) throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
+  if (outcome == Vetter::Outcome::Died) {
+    throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
+  }
+  if (outcome == Vetter::Outcome::TimedOut) {
+    if (now) {
+      std::lock_guard lock(gPoolMutex);
+      timedOut()[path] = *now;
+    }
+    throw Error(path, timeoutReason(seconds));
+  }
 }
 
 }  // namespace octoray::dicom::detail

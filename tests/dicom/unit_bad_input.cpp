@@ -665,6 +665,49 @@ TEST(BadInputDicom, FileOnlyGdcmsHeaderReadAbortsOnIsSkippedByName) {
   expectOnlySkipped(dir, damaged, "the GDCM parser aborted on it", 5);
 }
 
+// A file GDCM takes too long on is refused as a hang, by name, and the rest of the folder
+// loads. pydicom's SC_rgb_jpeg.dcm stands in for a file GDCM hangs on: GDCM takes 5-8 s and
+// 1.3 GB on it here, far above the half-second limit set below. A second look at the same file
+// (a DICOMDIR walk, then the header read) is refused at once instead of waiting again, and a
+// limit that is not a positive number of seconds is named rather than ignored.
+TEST(BadInputDicom, FileGdcmDoesNotFinishInTimeIsRefusedByNameOnce) {
+  const fs::path slowSource = test::pydicomTestFiles() / "SC_rgb_jpeg.dcm";
+  if (!fs::exists(slowSource)) GTEST_SKIP() << "skipped: " << slowSource << " is absent (python3-pydicom)";
+  const auto dir = test::freshTempDir("bad_dicom_parse_timeout");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 4;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path slow = dir / "slow.dcm";
+  fs::copy_file(slowSource, slow);
+
+  ASSERT_EQ(::setenv("OCTORAY_DICOM_PARSE_TIMEOUT", "0.5", 1), 0);
+  expectOnlySkipped(dir, slow, "the GDCM parser did not finish reading it in 0.5 s", 4);
+
+  const auto start = std::chrono::steady_clock::now();
+  const std::string again = errorOf([&] { (void)dicom::readPatientIdentity(slow.string()); }, "readPatientIdentity");
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_NE(again.find(slow.string()), std::string::npos) << again;
+  EXPECT_NE(again.find("did not finish reading it in 0.5 s"), std::string::npos) << again;
+  EXPECT_LT(seconds, 0.4) << "the second look waited for the parser again";
+
+  // A touched file is parsed again (and waited for again) rather than refused from memory.
+  fs::last_write_time(slow, fs::last_write_time(slow) + 1s);
+  const auto touched = std::chrono::steady_clock::now();
+  const std::string third = errorOf([&] { (void)dicom::readPatientIdentity(slow.string()); }, "readPatientIdentity");
+  EXPECT_GE(std::chrono::duration<double>(std::chrono::steady_clock::now() - touched).count(), 0.5);
+  EXPECT_NE(third.find("did not finish reading it in 0.5 s"), std::string::npos) << third;
+
+  for (const char* bad : {"0", "-3", "abc", "1.5s", "nan"}) {
+    ASSERT_EQ(::setenv("OCTORAY_DICOM_PARSE_TIMEOUT", bad, 1), 0);
+    const fs::path image = written.slices()[0].path;
+    const std::string message = errorOf([&] { (void)dicom::readPatientIdentity(image.string()); }, "readPatientIdentity");
+    EXPECT_NE(message.find(image.string()), std::string::npos) << message;
+    EXPECT_NE(message.find(fmt::format("OCTORAY_DICOM_PARSE_TIMEOUT is '{}', not a positive number", bad)),
+              std::string::npos) << message;
+  }
+  ASSERT_EQ(::unsetenv("OCTORAY_DICOM_PARSE_TIMEOUT"), 0);
+}
+
 // One image whose orientation differs is split off into another part of the series; the
 // volume built from the main part names it.
 TEST(BadInputDicom, ImageSplitOffFromTheSeriesIsNamed) {
