@@ -28,6 +28,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -54,15 +55,16 @@ constexpr const char* kTimeoutVariable = "OCTORAY_DICOM_PARSE_TIMEOUT";
 constexpr double kDefaultTimeoutSeconds = 120.0;
 constexpr double kStartTimeoutSeconds = 120.0;  // loading the libraries, before the first file
 
-// Seconds the child may take on one file: the variable where it holds a positive number.
+// Seconds the child may take on one file: the variable where it holds a number from 0.001 on.
 double parseTimeoutSeconds(const std::string& path) {
   const char* text = std::getenv(kTimeoutVariable);
   if (!text || !*text) return kDefaultTimeoutSeconds;
-  char* end = nullptr;
-  const double seconds = std::strtod(text, &end);
-  if (end == text || *end != '\0' || !std::isfinite(seconds) || seconds <= 0.0) {
-    throw Error(path, fmt::format("{} is '{}', not a positive number of seconds for how long GDCM "
-                                  "may parse one DICOM file", kTimeoutVariable, text));
+  const char* end = text + std::strlen(text);
+  double seconds = 0.0;
+  const auto [stop, error] = std::from_chars(text, end, seconds);  // no locale, no spaces
+  if (error != std::errc() || stop != end || !std::isfinite(seconds) || seconds < 0.001) {
+    throw Error(path, fmt::format("{} is '{}', not a number of seconds (0.001 or more) for how "
+                                  "long GDCM may parse one DICOM file", kTimeoutVariable, text));
   }
   return seconds;
 }
@@ -232,11 +234,13 @@ class Vetter {
     fd_ = fds[0];
     owner_ = ::getpid();
     uint8_t ready = 0;
-    if (!readableWithin(fd_, kStartTimeoutSeconds) || !receiveAll(fd_, &ready, 1)) {
+    const bool answered = readableWithin(fd_, kStartTimeoutSeconds);
+    if (!answered || !receiveAll(fd_, &ready, 1)) {
       ::kill(pid_, SIGKILL);
       stop();
-      throw Error(path, fmt::format("the process that vets the file with GDCM did not start in {:g} s",
-                                    kStartTimeoutSeconds));
+      throw Error(path, answered ? std::string("the process that vets the file with GDCM ended while starting")
+                                 : fmt::format("the process that vets the file with GDCM did not start in {:g} s",
+                                               kStartTimeoutSeconds));
     }
   }
 
