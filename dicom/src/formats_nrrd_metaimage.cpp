@@ -524,6 +524,19 @@ std::unique_ptr<VolumeSource> openNrrd(const std::string& path) {
   for (std::size_t a = 0; a < 3; ++a) info.dims[a] = a < spatial.size() ? spatial[a].size : 1;
   info.patientFromIndex = nrrdPatientFromIndex(header, spatial, path, info.warnings);
 
+  // The values' unit (NRRD's 'sample units'): Hounsfield units make the volume CT, as DICOM's
+  // modality does; any other unit is kept as a note (our unit field knows only HU).
+  if (const auto units = header.field("sample units")) {
+    std::string unit = *units;
+    if (unit.size() >= 2 && unit.front() == '"' && unit.back() == '"') unit = unit.substr(1, unit.size() - 2);
+    if (lowerCase(unit) == "hu" || lowerCase(unit) == "hounsfield units") {
+      info.unit = "HU";
+    } else if (!unit.empty()) {
+      info.warnings.push_back(fmt::format("sample units '{}' are not Hounsfield units: the values are "
+                                          "shown as they are, not as CT", unit));
+    }
+  }
+
   detail::RawLayout layout;
   layout.dims = info.dims;
   nrrdSampleLayout(header, path, layout, info.warnings);

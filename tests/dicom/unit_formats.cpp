@@ -161,6 +161,31 @@ TEST(NrrdFormat, AttachedObliqueBigEndianShort) {
   }
 }
 
+// NRRD's 'sample units' field: Hounsfield units (any case, quoted or not) make the volume CT;
+// another unit is named in a warning and the values stay unlabelled; without it, nothing.
+TEST(NrrdFormat, SampleUnitsInHounsfieldMakeTheVolumeCt) {
+  const auto dir = test::freshTempDir("nrrd_sample_units");
+  const std::array<int64_t, 3> dims{4, 3, 2};
+  const auto open = [&](const std::string& name, const std::string& extra) {
+    writeFile(dir / name, nrrdHeader("short", dims, extra + "space: LPS\nspace directions: (1,0,0) (0,1,0) (0,0,1)\n"
+                                                            "endian: little\nencoding: raw\n\n") +
+                              encode<int16_t>(dims, false));
+    return openNrrd((dir / name).string());
+  };
+  for (const std::string units : {"HU", "hu", "\"HU\"", "Hounsfield Units"}) {
+    const auto source = open("hu.nrrd", "sample units: " + units + "\n");
+    EXPECT_EQ(source->info().unit, "HU") << units;
+    EXPECT_TRUE(source->info().warnings.empty()) << units << ": " << source->info().warnings.front();
+  }
+  const auto other = open("mu.nrrd", "sample units: 1/cm\n");
+  EXPECT_EQ(other->info().unit, "");
+  ASSERT_EQ(other->info().warnings.size(), 1u);
+  EXPECT_EQ(other->info().warnings[0],
+            "sample units '1/cm' are not Hounsfield units: the values are shown as they are, not as CT");
+  const auto none = open("none.nrrd", "");
+  EXPECT_EQ(none->info().unit, "");
+}
+
 TEST(NrrdFormat, RasSpaceIsConvertedToLps) {
   const auto dir = test::freshTempDir("nrrd_ras");
   const std::array<int64_t, 3> dims{12, 3, 2};

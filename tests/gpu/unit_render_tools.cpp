@@ -129,9 +129,25 @@ TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
   };
   auto image = [&](const std::string& name) { return gpu::readImage(dir / name).rgba; };
 
-  // The store says HU in its provenance; the NRRD does not, but its values reach air.
+  // The store says HU in its provenance and the phantom's NRRD in its 'sample units'; the same
+  // NRRD without that line does not, but its values reach air.
+  const std::string unlabelled = (dir / "unlabelled.nhdr").string();
+  {
+    std::ifstream in(nrrd);
+    std::ofstream out(unlabelled);
+    int dropped = 0;
+    for (std::string line; std::getline(in, line);) {
+      if (line == "sample units: HU") {
+        ++dropped;
+      } else {
+        out << line << '\n';
+      }
+    }
+    ASSERT_EQ(dropped, 1);
+  }
   for (const auto& [input, says] : {std::pair{store, std::string("(CT, dvr)")},
-                                    std::pair{nrrd, std::string("look like CT")}}) {
+                                    std::pair{nrrd, std::string("(CT, dvr)")},
+                                    std::pair{unlabelled, std::string("look like CT")}}) {
     SCOPED_TRACE(input);
     const ProcessResult byDefault = run({input, "-o", (dir / "d.png").string(), "--exr", (dir / "d.exr").string()});
     ASSERT_EQ(byDefault.exitCode, 0) << byDefault.err;

@@ -266,6 +266,8 @@ TEST(PhantomNrrd, RoundTripsExactlyThroughOpenVolume) {
   const VolumeInfo& expected = phantom->info();
   const VolumeInfo& got = read->info();
   EXPECT_EQ(got.dims, expected.dims);
+  EXPECT_EQ(got.unit, "HU");  // 'sample units': a store built from the file is CT, in any format
+  EXPECT_EQ(got.unit, expected.unit);
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 4; ++c) {
       EXPECT_NEAR(got.patientFromIndex.m[r][c], expected.patientFromIndex.m[r][c], 1e-9)

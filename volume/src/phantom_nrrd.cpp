@@ -99,6 +99,7 @@ std::string nrrdHeader(const PhantomOptions& options, const VolumeInfo& info,
       "kinds: domain domain domain\n"
       "endian: little\n"
       "encoding: raw\n"
+      "sample units: HU\n"
       "space origin: ({},{},{})\n"
       "data file: {}\n",
       info.description, options.dims[0], options.dims[1], options.dims[2], s.x, s.y, s.z, origin.x,
