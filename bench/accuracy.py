@@ -107,7 +107,8 @@ class Bench:
                                                          "gradients": ["--gradients"]}
         for variant, extra in variants.items():
             store = d / f"{name}-{variant}.octoray"
-            if not store.exists():
+            # kept from an earlier run unless octoray-import is newer (its store format may differ)
+            if not store.exists() or store.stat().st_mtime < (self.bin / "octoray-import").stat().st_mtime:
                 log(f"import {source} -> {store.name}")
                 self.run([self.bin / "octoray-import", source, "-o", store, "--border", "2", *extra])
             stores[variant] = store

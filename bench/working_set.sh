@@ -73,7 +73,8 @@ results=$out/results.jsonl
 store=${STORE:-}
 if [[ -z $store ]]; then
   store=$out/phantom-$dims.octoray
-  if [[ ! -f $store ]]; then
+  # Kept from an earlier run unless octoray-import is newer (a store format it may not read).
+  if [[ ! -f $store || $store -ot $bin/octoray-import ]]; then
     echo "== building a $dims octoray-phantom store"
     "$bin/octoray-phantom" --size "$dims" -o "$out/phantom.nhdr"
     "$bin/octoray-import" "$out/phantom.nhdr" -o "$store" --border 2
@@ -146,7 +147,7 @@ visibility_views phantom-soft-tissue "$store" "$zooms" --preset soft-tissue
 if [[ -d $shared/data/dicom/dcm_qa_ct/Philips ]]; then
   for head in S21570/S2020 S21610/S2010; do
     name=head-${head//\//-}
-    if [[ ! -f $out/$name.octoray ]]; then
+    if [[ ! -f $out/$name.octoray || $out/$name.octoray -ot $bin/octoray-import ]]; then
       "$bin/octoray-import" "$shared/data/dicom/dcm_qa_ct/Philips/$head" -o "$out/$name.octoray" --border 2 > /dev/null
     fi
     visibility_views "$name" "$out/$name.octoray" "1 2" --preset bone
