@@ -82,7 +82,8 @@ void writeOutputs(const gpu::Image& image, const Arguments& a) {
 // transfer function needs. A store says so in its provenance and root node; other inputs in
 // their VolumeInfo, their range read in one pass. Volumes that do not say (NRRD, NIfTI, raw)
 // but whose integer values reach down to air (-900 HU or below, not below -3100) are taken as
-// CT, as clinicians' CT exports in those formats are.
+// CT, as clinicians' CT exports in those formats are; a store of such a volume too, whatever
+// its sample format, as its provenance records whether the source's values were integers.
 struct ValueKind {
   bool hounsfield = false;
   bool guessed = false;  // hounsfield from the values alone
@@ -103,9 +104,17 @@ ValueKind valueKind(const std::string& path) {
     }
     kind.lo = store.node(0).minValue;
     kind.hi = store.node(0).maxValue;
-    integer = store.sampleFormat() == volume::SampleFormat::UInt16 &&
-              store.header().valueScale == 1.0 &&
-              store.header().valueOffset == std::round(store.header().valueOffset);
+    // Whether the source's values were integers: the provenance says so (a float32 store of
+    // integer data too); stores from before it did are judged by their sample format.
+    const nlohmann::json* said = nullptr;
+    if (provenance.is_object() && provenance.contains("source") && provenance["source"].is_object() &&
+        provenance["source"].contains("integerValues") && provenance["source"]["integerValues"].is_boolean()) {
+      said = &provenance["source"]["integerValues"];
+    }
+    integer = said ? said->get<bool>()
+                   : store.sampleFormat() == volume::SampleFormat::UInt16 &&
+                         store.header().valueScale == 1.0 &&
+                         store.header().valueOffset == std::round(store.header().valueOffset);
   } else {
     const auto source = openVolume(path);
     const VolumeInfo& info = source->info();

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "octoray/dicom/formats.h"
 #include "octoray/gpu/image_io.h"
 #include "octoray/gpu/image_metrics.h"
 #include "octoray/volume/phantom.h"
@@ -145,9 +146,19 @@ TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
     }
     ASSERT_EQ(dropped, 1);
   }
+  // A float32 store of that NRRD: its samples are floats, but its provenance says the source's
+  // values were integers, so the same guess holds.
+  const std::string floatStore = (dir / "unlabelled-float.octoray").string();
+  {
+    volume::BuildOptions options;
+    options.format = volume::BuildOptions::Format::Float32;
+    volume::buildStore(*openVolume(unlabelled), floatStore, options);
+    ASSERT_EQ(volume::StoreReader(floatStore).sampleFormat(), volume::SampleFormat::Float32);
+  }
   for (const auto& [input, says] : {std::pair{store, std::string("(CT, dvr)")},
                                     std::pair{nrrd, std::string("(CT, dvr)")},
-                                    std::pair{unlabelled, std::string("look like CT")}}) {
+                                    std::pair{unlabelled, std::string("look like CT")},
+                                    std::pair{floatStore, std::string("look like CT")}}) {
     SCOPED_TRACE(input);
     const ProcessResult byDefault = run({input, "-o", (dir / "d.png").string(), "--exr", (dir / "d.exr").string()});
     ASSERT_EQ(byDefault.exitCode, 0) << byDefault.err;

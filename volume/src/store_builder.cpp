@@ -433,7 +433,8 @@ std::string provenance(const VolumeInfo& info, const BuildOptions& options) {
   if (j.is_discarded() || !j.is_object()) throw Error("", "provenance JSON is not an object");
   j["source"] = {{"format", info.format}, {"modality", info.modality},
                  {"description", info.description}, {"seriesUid", info.seriesUid},
-                 {"unit", info.unit}, {"tiltDegrees", info.tiltDegrees},
+                 {"unit", info.unit}, {"integerValues", info.integerValues},
+                 {"tiltDegrees", info.tiltDegrees},
                  {"resampled", info.resampled}, {"warnings", info.warnings.size()}};
   if (!options.sourceContentHash.empty()) j["source"]["contentHash"] = options.sourceContentHash;
   j["builder"] = {{"software", "octoray"}, {"storeVersion", kStoreVersion},
