@@ -96,25 +96,22 @@ ValueKind valueKind(const std::string& path) {
   if (volume::isStoreFile(path)) {
     const volume::StoreReader store(path);
     const nlohmann::json provenance = nlohmann::json::parse(store.provenanceJson(), nullptr, false);
-    if (provenance.is_object() && provenance.contains("source") &&
-        provenance["source"].is_object()) {
-      const nlohmann::json& source = provenance["source"];
-      kind.hounsfield = source.value("unit", std::string()) == "HU" ||
-                        source.value("modality", std::string()) == "CT";
+    nlohmann::json source = nlohmann::json::object();
+    if (provenance.is_object() && provenance.contains("source") && provenance["source"].is_object()) {
+      source = provenance["source"];
     }
+    kind.hounsfield = source.value("unit", std::string()) == "HU" ||
+                      source.value("modality", std::string()) == "CT";
     kind.lo = store.node(0).minValue;
     kind.hi = store.node(0).maxValue;
     // Whether the source's values were integers: the provenance says so (a float32 store of
     // integer data too); stores from before it did are judged by their sample format.
-    const nlohmann::json* said = nullptr;
-    if (provenance.is_object() && provenance.contains("source") && provenance["source"].is_object() &&
-        provenance["source"].contains("integerValues") && provenance["source"]["integerValues"].is_boolean()) {
-      said = &provenance["source"]["integerValues"];
-    }
-    integer = said ? said->get<bool>()
-                   : store.sampleFormat() == volume::SampleFormat::UInt16 &&
-                         store.header().valueScale == 1.0 &&
-                         store.header().valueOffset == std::round(store.header().valueOffset);
+    const auto said = source.find("integerValues");
+    integer = said != source.end() && said->is_boolean()
+                  ? said->get<bool>()
+                  : store.sampleFormat() == volume::SampleFormat::UInt16 &&
+                        store.header().valueScale == 1.0 &&
+                        store.header().valueOffset == std::round(store.header().valueOffset);
   } else {
     const auto source = openVolume(path);
     const VolumeInfo& info = source->info();
