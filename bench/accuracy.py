@@ -108,7 +108,8 @@ class Bench:
         for variant, extra in variants.items():
             store = d / f"{name}-{variant}.octoray"
             # kept from an earlier run unless octoray-import is newer (its store format may differ)
-            if not store.exists() or store.stat().st_mtime < (self.bin / "octoray-import").stat().st_mtime:
+            importer = self.bin / "octoray-import"
+            if not store.exists() or (importer.exists() and store.stat().st_mtime < importer.stat().st_mtime):
                 log(f"import {source} -> {store.name}")
                 self.run([self.bin / "octoray-import", source, "-o", store, "--border", "2", *extra])
             stores[variant] = store
