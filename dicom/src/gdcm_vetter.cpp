@@ -9,8 +9,17 @@
 // main() runs. A fork() would copy a multithreaded process whose other threads may hold locks
 // (the allocator's, GDCM's, TBB's) and could deadlock the child.
 //
+// GDCM sizes a value's buffer from the length its element declares, before reading it, in each
+// of the readings it tries on a malformed file. The length walk (declared_lengths.cpp) refuses
+// lengths past the end of the file in the readings it follows; for the others the child parses
+// under an address-space limit: 128 MiB plus 32 times the file's size. An allocation beyond it
+// fails at once, instead of GDCM clearing up to 4 GiB for a 1 KiB file (found by fuzz_dicomdir:
+// 338 MB in its explicit/implicit reading), and the file is refused without the parent
+// parsing it. Under the sanitizers their allocator aborts the child instead, and the file is
+// refused as one GDCM aborted on.
+//
 // A file GDCM does not finish parsing in time (OCTORAY_DICOM_PARSE_TIMEOUT seconds, 120 by
-// default: the slowest file we know, pydicom's SC_rgb_jpeg.dcm, takes 5-8 s here) is refused
+// default: a valid image with 1.5 million sequence items takes GDCM about 6 s here) is refused
 // as a hang: its child is killed, and the parent never parses it, since it would hang too. The
 // limit runs from the moment the path is sent: a child reports ready once started, so loading
 // its libraries (seconds under the sanitizers) is not counted against the first file.
@@ -22,6 +31,8 @@
 #include <spawn.h>
 #include <fmt/format.h>
 #include <gdcmReader.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -32,6 +43,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -40,6 +52,7 @@
 #include <utility>
 #include <memory>
 #include <mutex>
+#include <new>
 #include <set>
 #include <vector>
 
@@ -54,6 +67,16 @@ constexpr int kChildFd = 3;
 constexpr const char* kTimeoutVariable = "OCTORAY_DICOM_PARSE_TIMEOUT";
 constexpr double kDefaultTimeoutSeconds = 120.0;
 constexpr double kStartTimeoutSeconds = 120.0;  // loading the libraries, before the first file
+
+// What the child's address space may grow by while GDCM parses a file of `fileBytes`: enough
+// for its data set, a 32-fold inflated deflate body included, and for GDCM's objects of a
+// file of millions of small elements (240 MB for a 20 MB file here).
+constexpr uint64_t kMemoryBaseBytes = uint64_t(128) << 20;
+constexpr uint64_t kMemoryBytesPerFileByte = 32;
+uint64_t memoryBudgetBytes(uint64_t fileBytes) {
+  const uint64_t most = (~uint64_t(0) - kMemoryBaseBytes) / kMemoryBytesPerFileByte;
+  return fileBytes > most ? ~uint64_t(0) : kMemoryBaseBytes + kMemoryBytesPerFileByte * fileBytes;
+}
 
 // Seconds the child may take on one file: the variable where it holds a number from 0.001 on.
 double parseTimeoutSeconds(const std::string& path) {
@@ -117,8 +140,9 @@ bool receiveAll(int fd, void* data, std::size_t bytes) {
 // the file without its VR (found by fuzz_dicomdir; a full read only reports failure there).
 // Where a full read succeeds, a header read parses a prefix of what it parsed, in the same
 // order of attempts, and is not repeated: some files cost GDCM seconds per read (pydicom's
-// SC_rgb_jpeg.dcm: 5-7 s and 1.3 GB each, its implicit body labelled explicit).
-// 0 = parsed, 1 = GDCM reported failure.
+// SC_rgb_jpeg.dcm cost 5-7 s and 1.3 GB each, its implicit body labelled explicit, until the
+// length walk refused such files before GDCM sees them).
+// 0 = parsed, 1 = GDCM reported failure (2, set by the caller: an allocation was refused).
 uint8_t parseInChild(const std::string& path) {
   bool parsed = false;
   try {
@@ -149,9 +173,48 @@ uint8_t parseInChild(const std::string& path) {
   return 1;
 }
 
+// Set in the child when operator new could not allocate within the limit.
+volatile bool gAllocationRefused = false;
+void refuseAllocation() {
+  gAllocationRefused = true;
+  throw std::bad_alloc();
+}
+
+// The child's address space now, from /proc/self/statm (0 where it cannot be read).
+uint64_t addressSpaceBytes() {
+  std::FILE* statm = std::fopen("/proc/self/statm", "r");
+  if (!statm) return 0;
+  unsigned long long pages = 0;
+  const bool read = std::fscanf(statm, "%llu", &pages) == 1;
+  std::fclose(statm);
+  return read ? pages * static_cast<uint64_t>(::sysconf(_SC_PAGESIZE)) : 0;
+}
+
+// Parses `path` with the address space limited to what it has now plus the file's budget.
+uint8_t parseWithinMemoryBudget(const std::string& path) {
+  struct stat status {};
+  const uint64_t fileBytes = ::stat(path.c_str(), &status) == 0 ? uint64_t(status.st_size) : 0;
+  rlimit original{};
+  const uint64_t now = addressSpaceBytes();
+  const bool limited = now > 0 && ::getrlimit(RLIMIT_AS, &original) == 0;
+  if (limited) {
+    rlimit narrowed = original;
+    const uint64_t budget = memoryBudgetBytes(fileBytes);
+    const uint64_t cap = now > ~uint64_t(0) - budget ? ~uint64_t(0) : now + budget;
+    if (original.rlim_cur == RLIM_INFINITY || cap < original.rlim_cur) narrowed.rlim_cur = cap;
+    ::setrlimit(RLIMIT_AS, &narrowed);
+  }
+  gAllocationRefused = false;
+  uint8_t result = parseInChild(path);
+  if (limited) ::setrlimit(RLIMIT_AS, &original);
+  if (gAllocationRefused) result = 2;
+  return result;
+}
+
 [[noreturn]] void childLoop(int fd) {
   const int devNull = ::open("/dev/null", O_WRONLY);
   if (devNull >= 0) ::dup2(devNull, STDERR_FILENO);  // GDCM's assertion text is not ours to print
+  std::set_new_handler(refuseAllocation);
   const uint8_t ready = 1;  // the parent's time limit is for parsing, not for starting
   if (!sendAll(fd, &ready, 1)) ::_exit(0);
   while (true) {
@@ -159,7 +222,7 @@ uint8_t parseInChild(const std::string& path) {
     if (!receiveAll(fd, &length, sizeof length) || length > (1u << 20)) ::_exit(0);
     std::string path(length, '\0');
     if (!receiveAll(fd, path.data(), length)) ::_exit(0);
-    const uint8_t status = parseInChild(path);
+    const uint8_t status = parseWithinMemoryBudget(path);
     if (!sendAll(fd, &status, 1)) ::_exit(0);
   }
 }
@@ -182,7 +245,7 @@ class Vetter {
     pid_ = -1;
   }
 
-  enum class Outcome { Survived, Died, TimedOut };
+  enum class Outcome { Survived, Died, TimedOut, NeedsTooMuchMemory };
 
   // Whether GDCM survives parsing `path` (whether or not it understood it) within `seconds`.
   Outcome parse(const std::string& path, double seconds) {
@@ -198,7 +261,7 @@ class Vetter {
       stop();
       return Outcome::TimedOut;
     }
-    if (receiveAll(fd_, &status, 1)) return Outcome::Survived;
+    if (receiveAll(fd_, &status, 1)) return status == 2 ? Outcome::NeedsTooMuchMemory : Outcome::Survived;
     stop();  // the child died on this file; the next call starts a fresh one
     return Outcome::Died;
   }
@@ -327,6 +390,12 @@ void vetWithGdcm(const std::string& path) {
   }
   if (outcome == Vetter::Outcome::Died) {
     throw Error(path, "malformed or truncated DICOM (the GDCM parser aborted on it)");
+  }
+  if (outcome == Vetter::Outcome::NeedsTooMuchMemory) {
+    throw Error(path, fmt::format("malformed DICOM: the GDCM parser asked for more than the {} MiB "
+                                  "a file of {} bytes may take (a declared length it cannot hold)",
+                                  memoryBudgetBytes(now ? now->size : 0) >> 20,
+                                  now ? now->size : 0));
   }
   if (outcome == Vetter::Outcome::TimedOut) {
     if (now) {
