@@ -273,11 +273,8 @@ bool storeIsUpToDate(const WorkItem& item) {
   std::error_code ec;
   if (!fs::is_regular_file(item.output, ec)) return false;
   try {
-    volume::StoreReader store(item.output);
-    const json provenance = json::parse(store.provenanceJson(), nullptr, false);
-    if (!provenance.is_object() || !provenance.contains("source")) return false;
-    const json& source = provenance["source"];
-    return source.is_object() && source.value("contentHash", "") == item.contentHash;
+    const volume::StoreReader store(item.output);
+    return !store.source().contentHash.empty() && store.source().contentHash == item.contentHash;
   } catch (const std::exception&) {
     return false;  // damaged: built again
   }

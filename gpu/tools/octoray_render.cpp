@@ -95,20 +95,14 @@ ValueKind valueKind(const std::string& path) {
   bool integer = true;
   if (volume::isStoreFile(path)) {
     const volume::StoreReader store(path);
-    const nlohmann::json provenance = nlohmann::json::parse(store.provenanceJson(), nullptr, false);
-    nlohmann::json source = nlohmann::json::object();
-    if (provenance.is_object() && provenance.contains("source") && provenance["source"].is_object()) {
-      source = provenance["source"];
-    }
-    kind.hounsfield = source.value("unit", std::string()) == "HU" ||
-                      source.value("modality", std::string()) == "CT";
+    const volume::StoreSource& source = store.source();
+    kind.hounsfield = source.unit == "HU" || source.modality == "CT";
     kind.lo = store.node(0).minValue;
     kind.hi = store.node(0).maxValue;
     // Whether the source's values were integers: the provenance says so (a float32 store of
     // integer data too); stores from before it did are judged by their sample format.
-    const auto said = source.find("integerValues");
-    integer = said != source.end() && said->is_boolean()
-                  ? said->get<bool>()
+    integer = source.integerValues
+                  ? *source.integerValues
                   : store.sampleFormat() == volume::SampleFormat::UInt16 &&
                         store.header().valueScale == 1.0 &&
                         store.header().valueOffset == std::round(store.header().valueOffset);

@@ -137,6 +137,47 @@ TEST(StoreBuild, NonFiniteFloatSamplesAreRefusedNamingTheSample) {
   }
 }
 
+// What the builder records about the source comes back through StoreReader::source(), and
+// provenance that is not what the builder writes (another JSON type in a field, no "source",
+// not JSON) gives empty fields instead of an exception: octoray-render's own parse of it threw
+// nlohmann's type_error, naming no file, on a unit that was not a string.
+TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
+  const auto dir = test::freshTempDir("provenance_source");
+  for (const bool integer : {true, false}) {
+    MemoryVolume volume({20, 18, 16}, [integer](int64_t i, int64_t j, int64_t k) {
+      return static_cast<float>(i + j + k) + (integer ? 0.0f : 0.25f);
+    }, integer ? "HU" : "", integer);
+    BuildOptions options;
+    options.brickSize = 16;
+    options.format = BuildOptions::Format::Float32;
+    options.sourceContentHash = "0123456789abcdef";
+    const std::string path = (dir / (integer ? "hu.octoray" : "plain.octoray")).string();
+    buildStore(volume, path, options);
+    const StoreReader store(path);
+    EXPECT_EQ(store.source().format, "memory");
+    EXPECT_EQ(store.source().unit, integer ? "HU" : "");
+    EXPECT_EQ(store.source().contentHash, "0123456789abcdef");
+    ASSERT_TRUE(store.source().integerValues.has_value());
+    EXPECT_EQ(*store.source().integerValues, integer);
+  }
+  for (const char* provenance :
+       {"not json", "[1, 2]", "{}", R"({"source": 5})", R"({"source": null})",
+        R"({"source": {"unit": 5, "modality": ["CT"], "integerValues": "yes", "contentHash": {}}})"}) {
+    StoreSource source;
+    EXPECT_NO_THROW(source = parseStoreSource(provenance)) << provenance;
+    EXPECT_EQ(source.unit, "") << provenance;
+    EXPECT_EQ(source.modality, "") << provenance;
+    EXPECT_EQ(source.contentHash, "") << provenance;
+    EXPECT_FALSE(source.integerValues.has_value()) << provenance;
+  }
+  const StoreSource ct = parseStoreSource(
+      R"({"source": {"modality": "CT", "unit": "HU", "seriesUid": "1.2.3", "integerValues": true}})");
+  EXPECT_EQ(ct.modality, "CT");
+  EXPECT_EQ(ct.unit, "HU");
+  EXPECT_EQ(ct.seriesUid, "1.2.3");
+  EXPECT_EQ(ct.integerValues, std::optional<bool>(true));
+}
+
 TEST(StoreBuild, CodecsAreLossless) {
   MemoryVolume volume({50, 45, 40}, [](int64_t i, int64_t j, int64_t k) {
     return static_cast<float>((i * 7 + j * 13 + k * 29) % 2000 - 1000);

@@ -306,16 +306,11 @@ Dataset::Dataset(const std::string& path, const fs::path& cacheDir) : path_(path
     info_.patientFromIndex = store_->patientFromIndex();
     info_.format = "octoray store";
     info_.sourcePath = path;
-    try {
-      const auto provenance = nlohmann::json::parse(store_->provenanceJson());
-      const auto source = provenance.value("source", nlohmann::json::object());
-      info_.description = source.value("description", "");
-      info_.modality = source.value("modality", "");
-      info_.seriesUid = source.value("seriesUid", "");
-      info_.unit = source.value("unit", "");
-    } catch (const nlohmann::json::exception&) {
-      info_.description = fs::path(path).filename().string();
-    }
+    const volume::StoreSource& source = store_->source();
+    info_.description = source.description;
+    info_.modality = source.modality;
+    info_.seriesUid = source.seriesUid;
+    info_.unit = source.unit;
     if (info_.description.empty()) info_.description = fs::path(path).filename().string();
     state_ = State::Ready;
     return;

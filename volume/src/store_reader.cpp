@@ -12,6 +12,7 @@
 #include <limits>
 
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include "codec.h"
 #include "octoray/core/error.h"
@@ -102,6 +103,28 @@ StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileB
   return h;
 }
 
+StoreSource parseStoreSource(const std::string& provenanceJson) {
+  StoreSource s;
+  const nlohmann::json provenance = nlohmann::json::parse(provenanceJson, nullptr, false);
+  if (!provenance.is_object()) return s;
+  const auto found = provenance.find("source");
+  if (found == provenance.end() || !found->is_object()) return s;
+  const nlohmann::json& source = *found;
+  const auto text = [&](const char* key) {
+    const auto v = source.find(key);
+    return v != source.end() && v->is_string() ? v->get<std::string>() : std::string();
+  };
+  s.format = text("format");
+  s.modality = text("modality");
+  s.description = text("description");
+  s.seriesUid = text("seriesUid");
+  s.unit = text("unit");
+  s.contentHash = text("contentHash");
+  const auto integer = source.find("integerValues");
+  if (integer != source.end() && integer->is_boolean()) s.integerValues = integer->get<bool>();
+  return s;
+}
+
 StoreReader::StoreReader(const std::string& path) : path_(path) {
   fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd_ < 0) throw Error(path, std::string("cannot open: ") + std::strerror(errno));
@@ -135,6 +158,7 @@ StoreReader::StoreReader(const std::string& path) : path_(path) {
         detail::checksum(provenance_.data(), provenance_.size()) != header_.provenanceChecksum) {
       throw Error(path, "provenance: checksum mismatch");
     }
+    source_ = parseStoreSource(provenance_);
     for (std::size_t i = 0; i < nodes_.size(); ++i) {
       const NodeRecord& n = nodes_[i];
       const uint64_t bytes = uint64_t{n.payloadBytes} + n.gradientBytes;

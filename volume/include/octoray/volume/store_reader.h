@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,23 @@ struct Brick {
   }
 };
 
+// What a store's provenance says about the volume it was built from: the builder's "source"
+// object (docs/store-format.md). A field the provenance lacks, or holds as another JSON type,
+// is empty; a provenance that is not a JSON object gives an empty StoreSource (the validator
+// reports it). Never patient names or paths: the builder does not record them.
+struct StoreSource {
+  std::string format;       // the reader that opened the source ("DICOM", "NRRD", ...)
+  std::string modality;     // DICOM modality ("CT", ...)
+  std::string description;  // series description
+  std::string seriesUid;
+  std::string unit;                   // "HU" where the values are Hounsfield units
+  std::string contentHash;            // of the source files, where the builder was given it
+  std::optional<bool> integerValues;  // whether every source value was an integer
+};
+
+// Parses the source fields out of provenance JSON (what StoreReader::source() holds).
+StoreSource parseStoreSource(const std::string& provenanceJson);
+
 class StoreReader {
  public:
   // Opens and verifies header, node table and provenance; throws octoray::Error naming the
@@ -48,6 +66,8 @@ class StoreReader {
   const std::vector<NodeRecord>& nodes() const { return nodes_; }
   const NodeRecord& node(int64_t id) const;
   const std::string& provenanceJson() const { return provenance_; }
+  // The provenance's source fields, parsed when the store is opened.
+  const StoreSource& source() const { return source_; }
   Mat4 patientFromIndex() const;
   SampleFormat sampleFormat() const { return static_cast<SampleFormat>(header_.sampleFormat); }
   // Physical value of a stored sample.
@@ -73,6 +93,7 @@ class StoreReader {
   OctreeLayout layout_;
   std::vector<NodeRecord> nodes_;
   std::string provenance_;
+  StoreSource source_;
 };
 
 // Parses and checks a header from raw bytes (used by the reader and the fuzz target).
