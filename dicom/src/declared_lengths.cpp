@@ -153,18 +153,20 @@ std::string tagName(uint16_t group, uint16_t element) {
 }
 
 // `detour`, where not empty, names the element without a VR from which GDCM's 16-bit reader
-// went on: the length is one GDCM would allocate there before failing and reading the file
-// another way.
+// went on: the length is one GDCM would allocate there, more than the vetting child's memory
+// budget for the file's size, before failing and reading the file another way.
 [[noreturn]] void refuse(const std::string& path, uint16_t group, uint16_t element,
-                         uint64_t declared, uint64_t remaining, const std::string& detour = {}) {
+                         uint64_t declared, uint64_t remaining, const std::string& detour = {},
+                         uint64_t fileBytes = 0) {
   const std::string what = group == 0x7fe0 && element == 0x0010 ? "pixel data"
                            : group == 0xfffe               ? "item " + tagName(group, element)
                                                            : "element " + tagName(group, element);
   if (!detour.empty()) {
     throw Error(path, fmt::format("{} has no VR in an explicit-VR data set, and read on from there "
-                                  "as GDCM first reads it, {} declares {} bytes but the file holds "
-                                  "{} after it (GDCM would allocate them: refused as corrupt)",
-                                  detour, what, declared, remaining));
+                                  "as GDCM first reads it, {} declares {} bytes; the file holds {} "
+                                  "after it, and GDCM would allocate them (more than the {} MiB a "
+                                  "file of its size may take): refused as corrupt",
+                                  detour, what, declared, remaining, memoryBudgetBytes(fileBytes) >> 20));
   }
   throw Error(path, fmt::format("{} declares {} bytes but the file holds {} after it (file "
                                 "truncated or corrupt)",
@@ -218,34 +220,45 @@ bool walkDeclaredLengths(const File& file, const std::string& path, uint64_t pos
       implicitBody = (syntax == "1.2.840.10008.1.2" || syntax.empty()) &&
                      !isVr(char(b[4]), char(b[5]));
     }
-    const bool bigHere = big && !meta;
     const bool implicitHere = !meta && (open.empty() ? implicitBody : open.back().implicit);
+    // Bytes that are no VR where the body has explicit VR: GDCM's 16-bit reader takes over at
+    // this element, outside any sequence it was in, and reads little endian from there on
+    // whatever the byte order. (A meta group without VRs GDCM rereads as implicit VR, its
+    // own way, never with that reader.)
+    const VrBytes vr = implicitHere ? VrBytes::None : classifyVr(char(b[4]), char(b[5]));
+    const bool item = u16(b, false) == 0xfffe || u16(b, true) == 0xfffe;  // no VR field
+    const bool startsDetour = !implicitHere && !meta && !item && vr == VrBytes::None && !sawNoVr;
+    if (startsDetour) {
+      sawNoVr = true;
+      if (noVr == NoVr::SixteenBit) open.clear();
+    }
+    const bool detourHere = noVr == NoVr::SixteenBit && sawNoVr;
+    const bool bigHere = big && !meta && !detourHere;
     const bool inFragments = !open.empty() && open.back().fragments;
     const uint16_t group = u16(b, bigHere), element = u16(b + 2, bigHere);
     const uint64_t remainingAfter8 = size - pos - 8;
+    if (startsDetour && noVr == NoVr::SixteenBit) {
+      detour = fmt::format("element {} at byte {}", tagName(group, element), pos);
+    }
 
     if (group == 0xfffe) {  // item, item delimiter, sequence delimiter: tag and 4-byte length
       const uint32_t length = u32(b + 4, bigHere);
       pos += 8;
       if (element == 0xe0dd && !open.empty() && open.back().end == kToDelimiter) open.pop_back();
       if (element != 0xe000 || length == kUndefinedLength) continue;
-      if (length > remainingAfter8) refuse(path, group, element, length, remainingAfter8, detour);
+      if (length > remainingAfter8) {
+        // GDCM's 16-bit reading fails here and GDCM reads the file another way (walked too):
+        // a file is refused for it only where the allocation would be beyond the budget.
+        if (detourHere && length <= memoryBudgetBytes(size)) break;
+        refuse(path, group, element, length, remainingAfter8, detourHere ? detour : "", size);
+      }
       if (inFragments) pos += length;  // a fragment: raw bytes; an item's elements follow
       continue;
     }
 
     uint64_t header = 8;
     uint32_t length = 0;
-    const VrBytes vr = implicitHere ? VrBytes::None : classifyVr(char(b[4]), char(b[5]));
-    if (!implicitHere && vr == VrBytes::None && !sawNoVr) {
-      sawNoVr = true;
-      // GDCM's VR16 reader takes over at this element, outside any sequence it was in.
-      if (noVr == NoVr::SixteenBit) {
-        open.clear();
-        detour = fmt::format("element {} at byte {}", tagName(group, element), pos);
-      }
-    }
-    const bool sixteenBit = !implicitHere && vr == VrBytes::None && noVr == NoVr::SixteenBit;
+    const bool sixteenBit = detourHere && !implicitHere && vr == VrBytes::None;
     const bool explicitVr = !implicitHere && (vr != VrBytes::None || sixteenBit);
     bool sequence = false, unknown = false;
     if (sixteenBit) {
@@ -295,7 +308,10 @@ bool walkDeclaredLengths(const File& file, const std::string& path, uint64_t pos
       continue;
     }
     const uint64_t remaining = size - pos;
-    if (length > remaining) refuse(path, group, element, length, remaining, detour);
+    if (length > remaining) {
+      if (detourHere && length <= memoryBudgetBytes(size)) break;
+      refuse(path, group, element, length, remaining, detourHere ? detour : "", size);
+    }
     // A value without a VR saying what it is holds a sequence where it starts with an item
     // whose length fits in the value (GDCM never reads pixel data so).
     if (unknown && !pixelData && length >= 8 && file.read(pos, b, 8) &&

@@ -6,6 +6,7 @@
 #include <gdcmTag.h>
 
 #include <optional>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -32,6 +33,9 @@ void vetWithGdcm(const std::string& path);
 // the file and the element when a defined length runs past the end of the file: GDCM would
 // allocate and clear a buffer of that size before finding the file too short.
 void checkDeclaredLengths(const std::string& path);
+// What the vetting child's address space may grow by while GDCM parses a file of `fileBytes`
+// (128 MiB plus 32 times the file); an allocation beyond it refuses the file.
+uint64_t memoryBudgetBytes(uint64_t fileBytes);
 
 }  // namespace octoray::dicom::detail
 namespace octoray::dicom { struct DecodedImage; }

@@ -624,6 +624,51 @@ TEST(BadInputDicom, DeclaredLengthsAreWalkedAsGdcmReadsBytesThatAreNoVr) {
                    "SC_rgb_jpeg.dcm");
 }
 
+// A file whose meta group is implicit VR (as old GE workstations wrote them): GDCM rereads the
+// group its own way, never with its 16-bit reader, and reads the file; so must the walk, which
+// follows that reader only from a body element with no VR (a review found it starting in the
+// meta group; with the memory budget below which that reading is not refused, this file
+// passed even so).
+TEST(BadInputDicom, ImplicitMetaGroupIsNotWalkedAsGdcmsSixteenBitReading) {
+  const auto dir = test::freshTempDir("implicit_meta");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 4;
+  spec.rows = spec.columns = 128;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path file = written.slices()[1].path;
+  std::string bytes;
+  {
+    std::ifstream in(file, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_EQ(bytes.compare(128, 4, "DICM"), 0);
+  // Each explicit meta element again as tag + 4-byte length + value.
+  std::string meta;
+  std::size_t at = 132;
+  while (at + 8 <= bytes.size() && bytes[at] == 2 && bytes[at + 1] == 0) {
+    const std::string vr = bytes.substr(at + 4, 2);
+    const bool longLength = vr == "OB" || vr == "UN" || vr == "SQ" || vr == "UT";
+    const std::size_t header = longLength ? 12 : 8;
+    uint32_t length = 0;
+    if (longLength) {
+      std::memcpy(&length, bytes.data() + at + 8, 4);
+    } else {
+      uint16_t shortLength = 0;
+      std::memcpy(&shortLength, bytes.data() + at + 6, 2);
+      length = shortLength;
+    }
+    const bool groupLength = bytes[at + 2] == 0 && bytes[at + 3] == 0;
+    if (!groupLength) meta += bytes.substr(at, 4) + le32(length) + bytes.substr(at + header, length);
+    at += header + length;
+  }
+  ASSERT_GT(meta.size(), 40u);
+  bytes = bytes.substr(0, 132) + tag(0x0002, 0x0000) + le32(4) + le32(uint32_t(meta.size())) + meta +
+          bytes.substr(at);
+  writeFile(file, bytes);
+  expectNothingSkipped(dir, 4);
+  EXPECT_EQ(errorOf([&] { dicom::decodeDicomFile(file.string()); }, "decodeDicomFile"), "");
+}
+
 // A DICOMDIR found by fuzz_dicomdir (kept in fuzz/regressions): explicit VR, an empty sequence
 // followed by a bare item. GDCM's last reading of it, explicit/implicit, takes the item's length
 // for a tag and the next tag for a 338 MB length, which it allocated and cleared for these
@@ -646,8 +691,9 @@ TEST(BadInputDicom, FileGdcmWouldAllocateFarMoreThanItHoldsForIsRefused) {
   expectCleanError([&] { dicom::decodeDicomFile(file.string()); }, {file.string(), reason},
                    "decodeDicomFile");
 #if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
-  // GDCM's two reads of the file took 2.0 s with the allocation.
-  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 0.5);
+  // GDCM's two reads of the file took 3.1 s with the allocation; without it 0.2 s, most of it
+  // starting the vetting child.
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 1.0);
 #else
   (void)start;
 #endif
