@@ -528,11 +528,7 @@ TEST(BadInputDicom, LengthPastTheEndOfTheFileIsRefusedBeforeGdcmAllocates) {
     ASSERT_TRUE(writer.Write());
   }
   // The four bytes before the value are its length, in explicit and implicit VR alike.
-  std::string bytes;
-  {
-    std::ifstream in(damaged, std::ios::binary);
-    bytes.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string bytes = readFile(damaged);
   const std::size_t at = bytes.find(marker);
   ASSERT_NE(at, std::string::npos);
   ASSERT_GE(at, 4u);
@@ -636,11 +632,7 @@ TEST(BadInputDicom, ImplicitMetaGroupIsNotWalkedAsGdcmsSixteenBitReading) {
   spec.rows = spec.columns = 128;
   const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
   const fs::path file = written.slices()[1].path;
-  std::string bytes;
-  {
-    std::ifstream in(file, std::ios::binary);
-    bytes.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string bytes = readFile(file);
   ASSERT_EQ(bytes.compare(128, 4, "DICM"), 0);
   // Each explicit meta element again as tag + 4-byte length + value.
   std::string meta;
@@ -705,17 +697,13 @@ TEST(BadInputDicom, FileGdcmWouldAllocateFarMoreThanItHoldsForIsRefused) {
 // run into a value declaring 2 GiB; and an implicit-VR file whose pixel data starts with the
 // bytes of an item tag and a 2 GiB item length (pixel data is never a sequence).
 TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) {
-  const auto readBytes = [](const fs::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
   {
     const auto dir = test::freshTempDir("lengths_un_implicit");
     dicom::SyntheticSeriesSpec spec;
     spec.sliceCount = 6;
     const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
     const fs::path file = written.slices()[2].path;
-    std::string bytes = readBytes(file);
+    std::string bytes = readFile(file);
     std::string value(16708, '\0');  // 0x4144: "DA" in its two low bytes
     const std::string trap = std::string("\xff\xff\xff\x7f", 4) + "OB" + std::string(2, '\0') +
                              le32(0x7fffffff);
@@ -736,7 +724,7 @@ TEST(BadInputDicom, DeclaredLengthsFollowImplicitContentAndPixelDataLikeAnItem) 
     spec.transferSyntax = dicom::SyntheticTransferSyntax::ImplicitVRLittleEndian;
     const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
     const fs::path file = written.slices()[2].path;
-    std::string bytes = readBytes(file);
+    std::string bytes = readFile(file);
     const std::size_t at = bytes.rfind(tag(0x7fe0, 0x0010));
     ASSERT_NE(at, std::string::npos);
     bytes.replace(at + 8, 8, tag(0xfffe, 0xe000) + le32(0x7fffffff));
@@ -757,11 +745,7 @@ TEST(BadInputDicom, FileOnlyGdcmsHeaderReadAbortsOnIsSkippedByName) {
   spec.sliceCount = 6;
   const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
   const fs::path damaged = written.slices()[3].path;
-  std::string bytes;
-  {
-    std::ifstream in(damaged, std::ios::binary);
-    bytes.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string bytes = readFile(damaged);
   // Preamble, "DICM", (0002,0000) UL 4 and the meta group it measures; the data set replaced.
   ASSERT_GE(bytes.size(), 144u);
   ASSERT_EQ(bytes.substr(128, 4), "DICM");
@@ -791,9 +775,7 @@ TEST(BadInputDicom, FileGdcmDoesNotFinishInTimeIsRefusedByNameOnce) {
   const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
   const fs::path slow = dir / "slow.dcm";
   {
-    std::ifstream in(written.slices()[4].path, std::ios::binary);
-    std::string bytes(std::istreambuf_iterator<char>(in), {});
-    in.close();
+    std::string bytes = readFile(written.slices()[4].path);
     fs::remove(written.slices()[4].path);
     const std::string item =
         tag(0xfffe, 0xe000) + le32(12) + tag(0x0008, 0x0100) + "SH" + le16(4) + "ABCD";
