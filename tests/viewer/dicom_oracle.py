@@ -31,7 +31,9 @@ class DicomVolume:
         slices.sort(key=lambda d: float(np.dot(np.array(d.ImagePositionPatient, dtype=float), normal)))
         ps = [float(v) for v in slices[0].PixelSpacing]  # row spacing, column spacing
         ipp = np.array([np.array(d.ImagePositionPatient, dtype=float) for d in slices])
-        step = (ipp[-1] - ipp[0]) / (len(slices) - 1)
+        # One slice: no spacing to read from positions; octoray's reader takes 1 mm along the
+        # normal (and says so), which only places the slab a plane through the slice samples.
+        step = (ipp[-1] - ipp[0]) / (len(slices) - 1) if len(slices) > 1 else normal
         self.affine = np.eye(4)
         self.affine[:3, 0] = row * ps[1]
         self.affine[:3, 1] = col * ps[0]

@@ -393,6 +393,48 @@ TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
   refused(R"({"name": "a", "window": 80, "level": 40})", "expected {", "7");
 }
 
+// Auto window/level: the 0.1st and 99.9th percentiles of the histogram, interpolated inside
+// their bins (100 bins of width 10 over [0, 1000)).
+TEST(ViewerPresets, AutoWindowLevelSpansTheMiddleOfTheValues) {
+  // 10,000 values spread evenly over bins 20-69 (200-700), and 10 outliers in each of the
+  // first and the last bin: 0.1 % of the 10,020 samples is 10.02, so the percentiles leave the
+  // outliers out and fall 0.02 samples into the spread's end bins.
+  std::vector<int> histogram(100, 0);
+  for (int b = 20; b < 70; ++b) histogram[static_cast<std::size_t>(b)] = 200;
+  histogram[0] = histogram[99] = 10;
+  WindowLevelPreset wl = autoWindowLevel(histogram, 0, 1000);
+  EXPECT_EQ(wl.name, "auto");
+  EXPECT_NEAR(wl.level - 0.5 * wl.window, 200 + 10 * 0.02 / 200, 1e-9);
+  EXPECT_NEAR(wl.level + 0.5 * wl.window, 700 - 10 * 0.02 / 200, 1e-9);
+  // The outliers moved into the spread's end bins (210 samples each): 10.02 samples into them.
+  histogram[0] = histogram[99] = 0;
+  histogram[20] += 10;
+  histogram[69] += 10;
+  wl = autoWindowLevel(histogram, 0, 1000);
+  EXPECT_NEAR(wl.level - 0.5 * wl.window, 200 + 10 * 10.02 / 210, 1e-9);
+  EXPECT_NEAR(wl.level + 0.5 * wl.window, 700 - 10 * 10.02 / 210, 1e-9);
+  EXPECT_NEAR(wl.level, 450, 1e-9);
+  // A constant volume: one bin wide, never zero. No samples: the whole range.
+  std::vector<int> one(256, 0);
+  one[40] = 5000;
+  wl = autoWindowLevel(one, -1024, 3071);
+  EXPECT_NEAR(wl.window, 4095.0 / 256, 1e-9);
+  EXPECT_GT(wl.window, 0);
+  wl = autoWindowLevel(std::vector<int>(256, 0), 127, 2145);
+  EXPECT_EQ(wl.window, 2018);
+  EXPECT_EQ(wl.level, 1136);
+}
+
+// An ROI's statistics carry the volume's unit, and none where it has none (an MR series).
+TEST(ViewerMeasure, RoiStatisticsNameTheVolumesUnitOrNone) {
+  const Measurement r{MeasureKind::Rectangle, ViewId::Axial, {{0, 0, 0}, {10, 5, 0}}};
+  const RoiStats st = roiStats(r, {30, 40, 50});
+  EXPECT_EQ(describe(r, &st, "HU"), "mean 40.0 SD 8.2 HU, min 30 max 50, 50.0 mm\u00b2");
+  EXPECT_EQ(describe(r, &st, ""), "mean 40.0 SD 8.2, min 30 max 50, 50.0 mm\u00b2");
+  EXPECT_EQ(unitSuffix("HU"), " HU");
+  EXPECT_EQ(unitSuffix(""), "");
+}
+
 TEST(ViewerDataset, StoreCacheKeyDependsOnContentNotPath) {
   test::MemoryVolume a({20, 20, 10}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });
   test::MemoryVolume b({20, 20, 10}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });

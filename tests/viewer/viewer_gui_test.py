@@ -376,6 +376,50 @@ class ViewerGui(unittest.TestCase):
         self.assertAlmostEqual(wl["level"], 40 + 50 * 80 / 200, places=6)
         self.assert_mpr_matches(self.head, load_png(vw.path("after.png")), state, "axial", wl=wl)
 
+    # A volume without Hounsfield units (pydicom's MR slice, values 127-2145): CT's windows
+    # would show it white. It opens with the auto window/level, the 0.1st to 99.9th percentile
+    # of its values, and reports no unit; key 1 gives a CT preset, key 0 the auto one again.
+    def test_volume_without_hounsfield_units_opens_with_auto_window(self):
+        import pydicom
+        mr = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", "MR_small.dcm")
+        if not os.path.isfile(mr):
+            self.skipTest(f"{mr} is absent (Debian's python3-pydicom installs it)")
+        vw = self.viewer("mr")
+        folder = vw.path("mr-series")
+        os.makedirs(folder, exist_ok=True)
+        shutil.copy(mr, folder)
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("opened.png")},
+            {"type": "key", "key": "1"},
+            {"type": "dump-state", "path": vw.path("brain.json")},
+            {"type": "key", "key": "0"},
+            {"type": "dump-state", "path": vw.path("auto.json")},
+        ]
+        vw.run(folder, steps)
+        state = load_json(vw.path("opened.png.json"))
+        self.assertEqual(state["dataset"]["state"], "ready")
+        self.assertEqual(state["dataset"]["unit"], "")
+        wl = state["session"]["windowLevel"]
+        self.assertEqual(wl["preset"], "auto")
+        values = pydicom.dcmread(mr).pixel_array.astype(np.float64)
+        lo, hi = np.percentile(values, [0.1, 99.9])
+        # The viewer reads its percentiles from 256 bins over the value range; one bin apart.
+        bin_width = (values.max() - values.min()) / 256
+        self.assertLess(abs((wl["level"] - wl["window"] / 2) - lo), bin_width, (wl, lo, hi))
+        self.assertLess(abs((wl["level"] + wl["window"] / 2) - hi), bin_width, (wl, lo, hi))
+        oracle = DicomVolume(folder)
+        shot = load_png(vw.path("opened.png"))
+        self.assert_mpr_matches(oracle, shot, state, "axial", label="MR: ")
+        got = crop(shot, state["views"]["axial"]["rect"])[:, :, 0]
+        inside = ~np.isnan(oracle.plane_values(state["views"]["axial"]["plane"]))
+        self.assertLess(float(np.mean(got[inside] == 255)), 0.02, "the slice is white: a CT window")
+        brain = load_json(vw.path("brain.json"))["session"]["windowLevel"]
+        self.assertEqual((brain["window"], brain["level"], brain["preset"]), (80, 40, "brain"))
+        again = load_json(vw.path("auto.json"))["session"]["windowLevel"]
+        self.assertEqual(again, wl)
+
     # (d) distance between two known voxels, (e) ROI mean/SD, and the linked crosshair.
     def test_measurements_and_crosshair(self):
         vw = self.viewer("measure")

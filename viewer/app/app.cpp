@@ -192,11 +192,14 @@ App::App(const AppOptions& options) : options_(options) {
   if (!options_.layout.empty()) setLayout(parseLayoutName(options_.layout));
   if (!options_.preset.empty()) selectTfPreset(options_.preset);
   if (!options_.mode.empty()) session.mode = parseModeName(options_.mode);
-  if (!options_.wlPreset.empty()) {
+  if (options_.wlPreset == "auto") {
+    applyAutoWindowLevel();
+  } else if (!options_.wlPreset.empty()) {
     const auto it = std::find_if(wlPresets.begin(), wlPresets.end(),
                                  [&](const auto& p) { return p.name == options_.wlPreset; });
     if (it == wlPresets.end()) throw Error("", fmt::format("--wl \"{}\": no such window/level preset", options_.wlPreset));
     applyWindowLevelPreset(*it);
+    wlChosenForDataset_ = true;
   }
   if (!options_.camera.empty()) {
     const gpu::Camera c = gpu::loadCamera(options_.camera);
@@ -240,6 +243,10 @@ void App::resetForDataset(const std::string& source) {
   crosshairSet_ = datasetFailedOpen_ = datasetErrorShown_ = false;
   session.source = source;
   session.measurements.clear();
+  valueUnit_.clear();
+  wlAtOpen_ = session.wl;
+  wlPresetAtOpen_ = session.wlPreset;
+  wlChosenForDataset_ = false;
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
 }
@@ -298,6 +305,16 @@ void App::onDatasetReady() {
     if (!mpr_[static_cast<std::size_t>(v)]) mpr_[static_cast<std::size_t>(v)] = std::make_unique<MprView>(static_cast<ViewId>(v));
   }
   computeHistogram();
+  valueUnit_ = dataset_->info().unit;
+  // CT windows mean nothing for values without Hounsfield units: such a volume opens with the
+  // auto window/level, as does any volume while "auto" is chosen; not where a session or --wl
+  // brings a window, or the reader set one while the volume was importing.
+  const bool wlUntouched = session.wl.window == wlAtOpen_.window && session.wl.level == wlAtOpen_.level &&
+                           session.wlPreset == wlPresetAtOpen_ && !wlChosenForDataset_;
+  if (autoWlPending_ || (!sessionLoaded_ && wlUntouched && (valueUnit_ != "HU" || session.wlPreset == "auto"))) {
+    applyAutoWindowLevel();
+  }
+  autoWlPending_ = false;
   // A fresh dataset starts centred; a session's own crosshair and camera are kept.
   if (!sessionLoaded_) {
     if (!crosshairSet_) session.crosshair = grid_->centre();
@@ -363,7 +380,20 @@ void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
   session.wlPreset = p.name;
 }
 
+void App::applyAutoWindowLevel() {
+  if (histogram_.empty()) {
+    autoWlPending_ = true;
+    session.wlPreset = "auto";
+    return;
+  }
+  applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
+}
+
 void App::applyWindowLevelKey(int key) {
+  if (key == 0) {
+    applyAutoWindowLevel();
+    return;
+  }
   for (const auto& p : wlPresets) {
     if (p.key == key) {
       applyWindowLevelPreset(p);
@@ -631,6 +661,7 @@ void App::frame() {
   const PreviewVolume* preview = dataset_ && !slicer_ ? dataset_->preview() : nullptr;
   if (preview && !grid_) {
     grid_ = preview->grid();
+    valueUnit_ = dataset_->info().unit;
     if (!sessionLoaded_ && !crosshairSet_) session.crosshair = grid_->centre();
     crosshairSet_ = true;
   }

@@ -208,7 +208,13 @@ class App {
   // Where imported stores and retrieved PACS series are kept.
   std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
-  void applyWindowLevelKey(int key);
+  void applyWindowLevelKey(int key);  // 1-9: the table's presets; 0: auto
+  // The window/level "auto" (presets.h) from the volume's histogram; before the volume is
+  // ready, once it is.
+  void applyAutoWindowLevel();
+  // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
+  // units); empty before the source's headers are read. Every value label follows it.
+  const std::string& valueUnit() const { return valueUnit_; }
   void selectTfPreset(const std::string& name);
   void resetCamera();
   void standardView(char letter);  // A P L R S I
@@ -311,6 +317,13 @@ class App {
   double firstMprMs_ = -1, first3dMs_ = -1;
   double frameMs_ = 0;
   bool sessionLoaded_ = false;       // the session being opened brings its own camera/crosshair
+  std::string valueUnit_;
+  // The window/level when the dataset was opened: a volume without HU opens with the auto
+  // window/level unless the reader (or --wl) set one meanwhile.
+  WindowLevel wlAtOpen_;
+  std::string wlPresetAtOpen_;
+  bool wlChosenForDataset_ = false;  // --wl named a preset for the volume on the command line
+  bool autoWlPending_ = false;       // "auto" asked for before the histogram exists
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

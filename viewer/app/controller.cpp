@@ -2,11 +2,12 @@
 // ends here and becomes a change of the session model. The mouse map is the one Slicer, Horos,
 // Weasis and OHIF share (../shared/research/viewer-anchors.md):
 //   MPR views: left-drag = the current tool (window/level by default: horizontal = width,
-//   vertical = level, up raises it; gain = width at the press / 200 HU per pixel), middle-drag
+//   vertical = level, up raises it; gain = width at the press / 200 per pixel), middle-drag
 //   = pan, right-drag = zoom, wheel = slices (Ctrl+wheel = zoom), Shift+left = crosshair,
 //   Ctrl+left-drag = rotate the other planes about this view's normal (oblique MPR).
 //   3D view: left-drag = rotate (trackball), middle-drag = pan, right-drag or wheel = zoom.
 //   Double-click maximises a view (and restores the layout).
+//   Keys 1-9: the window/level table's presets; 0: auto window/level (Weasis' key 0).
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -264,7 +265,7 @@ void Controller::key(const InputEvent& e) {
   const std::string& k = e.key;
   const auto hovered = app_.viewAt(lastX_, lastY_);
   const ViewId view = hovered ? *hovered : activeView_;
-  if (k.size() == 1 && k[0] >= '1' && k[0] <= '9') {
+  if (k.size() == 1 && k[0] >= '0' && k[0] <= '9') {
     app_.applyWindowLevelKey(k[0] - '0');
     return;
   }

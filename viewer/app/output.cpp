@@ -61,6 +61,7 @@ nlohmann::json App::stateJson() {
                     {"reusedCache", dataset_->reusedCache()},
                     {"progress", dataset_->progress()},
                     {"status", dataset_->status()},
+                    {"unit", valueUnit_},
                     {"previewFraction", previewFraction()}};
   }
   nlohmann::json views = nlohmann::json::object();

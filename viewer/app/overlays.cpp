@@ -94,7 +94,7 @@ void App::drawViews() {
       if (overlays) {
         outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
         std::string line = fmt::format("{}  {}", modeName(session.mode), session.preset);
-        if (session.mode == gpu::RaycastMode::Iso) line = fmt::format("iso {:.0f} HU", session.isoValue);
+        if (session.mode == gpu::RaycastMode::Iso) line = fmt::format("iso {:.0f}{}", session.isoValue, unitSuffix(valueUnit_));
         std::transform(line.begin(), line.begin() + 3, line.begin(), ::toupper);
         outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 8 + fs), text, line);
         if (view3d_) {
@@ -206,7 +206,8 @@ void App::drawViews() {
           const double hu = mv->valueAt(mx, my);
           const std::string probe = std::isnan(hu)
                                         ? fmt::format("({:.1f}, {:.1f}, {:.1f}) mm LPS", q.x, q.y, q.z)
-                                        : fmt::format("{:.0f} HU   ({:.1f}, {:.1f}, {:.1f}) mm LPS", hu, q.x, q.y, q.z);
+                                        : fmt::format("{:.0f}{}   ({:.1f}, {:.1f}, {:.1f}) mm LPS", hu,
+                                                      unitSuffix(valueUnit_), q.x, q.y, q.z);
           outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, probe).x - 8, a.y + 6), dim, probe);
         }
       }
@@ -277,9 +278,9 @@ void App::drawViews() {
           }
           if (finished) {
             const RoiStats st = roiStatsOf(m);
-            label = st.samples == 0 ? describe(m, &st)
-                                    : fmt::format("mean {:.1f} SD {:.1f} HU\nmin {:.0f} max {:.0f}\n{:.1f} mm\u00b2",
-                                                  st.mean, st.sd, st.min, st.max, st.areaMm2);
+            label = st.samples == 0 ? describe(m, &st, valueUnit_)
+                                    : fmt::format("mean {:.1f} SD {:.1f}{}\nmin {:.0f} max {:.0f}\n{:.1f} mm\u00b2",
+                                                  st.mean, st.sd, unitSuffix(valueUnit_), st.min, st.max, st.areaMm2);
           }
         }
         if (!label.empty()) {

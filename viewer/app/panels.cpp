@@ -93,6 +93,10 @@ void App::drawPanels() {
                       length(grid_->patientFromIndex.column(2))};
         ImGui::Text("%lld x %lld x %lld, %.3g x %.3g x %.3g mm", static_cast<long long>(grid_->dims[0]),
                     static_cast<long long>(grid_->dims[1]), static_cast<long long>(grid_->dims[2]), sp.x, sp.y, sp.z);
+        // What the values are: Hounsfield units, or numbers without a unit (MR, files without
+        // units), which no CT window or preset fits.
+        const std::string values = valueUnit_.empty() ? "values without a unit" : "values in " + valueUnit_;
+        ImGui::TextDisabled("%s%s", info.modality.empty() ? "" : (info.modality + ": ").c_str(), values.c_str());
       }
       if (dataset_->state() == Dataset::State::Importing) {
         ImGui::ProgressBar(static_cast<float>(dataset_->progress()), ImVec2(-1, 0), dataset_->status().c_str());
@@ -128,11 +132,13 @@ void App::drawPanels() {
 
   if (ImGui::CollapsingHeader("Window / level", ImGuiTreeNodeFlags_DefaultOpen)) {
     double w = session.wl.window, l = session.wl.level;
-    if (ImGui::InputDouble("window (HU)", &w, 10, 100, "%.0f")) {
+    // The labels name the volume's unit; the widgets' IDs stay the same ("###").
+    const std::string unit = valueUnit_.empty() ? "" : " (" + valueUnit_ + ")";
+    if (ImGui::InputDouble(("window" + unit + "###window").c_str(), &w, 10, 100, "%.0f")) {
       session.wl.window = std::max(1.0, w);
       session.wlPreset.clear();
     }
-    if (ImGui::InputDouble("level (HU)", &l, 10, 100, "%.0f")) {
+    if (ImGui::InputDouble(("level" + unit + "###level").c_str(), &l, 10, 100, "%.0f")) {
       session.wl.level = l;
       session.wlPreset.clear();
     }
@@ -185,7 +191,8 @@ void App::drawPanels() {
       ImGui::EndCombo();
     }
     float iso = static_cast<float>(session.isoValue);
-    if (ImGui::SliderFloat("isovalue (HU)", &iso, static_cast<float>(histLo_), static_cast<float>(histHi_), "%.0f")) {
+    const std::string isoLabel = valueUnit_.empty() ? "isovalue###iso" : "isovalue (" + valueUnit_ + ")###iso";
+    if (ImGui::SliderFloat(isoLabel.c_str(), &iso, static_cast<float>(histLo_), static_cast<float>(histHi_), "%.0f")) {
       session.isoValue = iso;
       markInteraction();
     }
@@ -259,7 +266,7 @@ void App::drawPanels() {
       std::string text;
       if (m.kind == MeasureKind::Ellipse || m.kind == MeasureKind::Rectangle) {
         const RoiStats st = roiStatsOf(m);
-        text = describe(m, &st);
+        text = describe(m, &st, valueUnit_);
       } else {
         text = describe(m);
       }
@@ -309,7 +316,7 @@ void App::drawHelp() {
   ImGui::Begin("Mouse and keyboard", &showHelp, ImGuiWindowFlags_NoSavedSettings);
   static const char* rows[][2] = {
       {"MPR views", ""},
-      {"left-drag", "current tool; window/level by default: right = wider window, up = higher level (W/200 HU per pixel)"},
+      {"left-drag", "current tool; window/level by default: right = wider window, up = higher level (window/200 per pixel)"},
       {"Shift + left-click/drag", "move the crosshair (the other views follow)"},
       {"Ctrl + left-drag", "rotate the other planes about this view's normal (oblique MPR)"},
       {"middle-drag", "pan"},
@@ -325,6 +332,7 @@ void App::drawHelp() {
       {"Shift + A P L R S I", "anterior, posterior, left, right, superior, inferior view"},
       {"Everywhere", ""},
       {"1 - 9", "window/level presets (table in the side panel)"},
+      {"0", "auto window/level: 0.1st to 99.9th percentile of the volume's values"},
       {"w x l a e b", "tools: window/level, crosshair, distance, angle, ellipse, rectangle"},
       {"Delete", "remove the last measurement"},
       {"double-click / f", "maximise a view, and back"},

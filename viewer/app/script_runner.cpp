@@ -164,6 +164,10 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   else if (name == "preset") selectTfPreset(text());
   else if (name == "wl-preset") {
     const std::string n = text();
+    if (n == "auto") {
+      applyAutoWindowLevel();
+      return;
+    }
     const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == n; });
     if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", n));
     applyWindowLevelPreset(*it);

@@ -22,8 +22,11 @@ void App::drawTfEditor() {
   ImGui::InvisibleButton("tf-canvas", size, ImGuiButtonFlags_MouseButtonLeft | ImGuiButtonFlags_MouseButtonRight);
   ImDrawList* dl = ImGui::GetWindowDrawList();
   dl->AddRectFilled(p0, p1, IM_COL32(20, 20, 24, 255));
-  // The value axis: the histogram's range (the store's minimum to maximum).
+  // The value axis: the histogram's range (the store's minimum to maximum), in the volume's unit.
   const double lo = histLo_, hi = histHi_;
+  const std::string unit = unitSuffix(valueUnit_);
+  const std::string gradientLabel =
+      (valueUnit_.empty() ? std::string("per mm") : valueUnit_ + "/mm") + ", alpha";
   auto xOf = [&](double v) { return p0.x + static_cast<float>((v - lo) / (hi - lo)) * size.x; };
   auto vOf = [&](float x) { return lo + (x - p0.x) / size.x * (hi - lo); };
   auto yOf = [&](float a) { return p1.y - a * size.y; };
@@ -86,13 +89,13 @@ void App::drawTfEditor() {
     tf.opacity.erase(tf.opacity.begin() + hovered);
   }
   if (hovered >= 0) {
-    ImGui::SetTooltip("%.0f HU, opacity %.3f", tf.opacity[static_cast<std::size_t>(hovered)].value,
+    ImGui::SetTooltip("%.0f%s, opacity %.3f", tf.opacity[static_cast<std::size_t>(hovered)].value, unit.c_str(),
                       tf.opacity[static_cast<std::size_t>(hovered)].alpha);
   }
   dl->AddRect(p0, p1, IM_COL32(90, 90, 100, 255));
-  ImGui::TextDisabled("%.0f HU", lo);
+  ImGui::TextDisabled("%.0f%s", lo, unit.c_str());
   ImGui::SameLine(ImGui::GetContentRegionAvail().x - 60);
-  ImGui::TextDisabled("%.0f HU", hi);
+  ImGui::TextDisabled("%.0f%s", hi, unit.c_str());
 
   // Colour points: swatches, each editable.
   ImGui::TextUnformatted("colour points");
@@ -105,19 +108,19 @@ void App::drawTfEditor() {
       tf.color[i].b = c[2];
       markInteraction();
     }
-    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%.0f HU", tf.color[i].value);
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%.0f%s", tf.color[i].value, unit.c_str());
     if ((i + 1) % 10 != 0) ImGui::SameLine();
     ImGui::PopID();
   }
   ImGui::NewLine();
-  // Gradient opacity: |gradient| (HU/mm) -> multiplier.
+  // Gradient opacity: |gradient| (unit/mm) -> multiplier.
   if (ImGui::TreeNode("gradient opacity")) {
     int remove = -1;
     for (std::size_t i = 0; i < tf.gradientOpacity.size(); ++i) {
       ImGui::PushID(static_cast<int>(i));
       float g[2] = {static_cast<float>(tf.gradientOpacity[i].magnitude), tf.gradientOpacity[i].alpha};
       ImGui::SetNextItemWidth(180);
-      if (ImGui::InputFloat2("HU/mm, alpha", g, "%.2f")) {
+      if (ImGui::InputFloat2(gradientLabel.c_str(), g, "%.2f")) {
         const double lowest = i > 0 ? tf.gradientOpacity[i - 1].magnitude : 0.0;
         tf.gradientOpacity[i].magnitude = std::max(static_cast<double>(g[0]), lowest);
         tf.gradientOpacity[i].alpha = std::clamp(g[1], 0.0f, 1.0f);

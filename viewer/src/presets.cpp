@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -84,6 +85,37 @@ void saveWindowLevelPresets(const std::vector<WindowLevelPreset>& presets,
 std::filesystem::path defaultWindowLevelPresetsPath() {
   if (const char* env = std::getenv("OCTORAY_WL_PRESETS"); env && *env) return env;
   return std::filesystem::path(OCTORAY_VIEWER_SOURCE_DIR) / "presets" / "window-level.json";
+}
+
+WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi) {
+  WindowLevelPreset p;
+  p.name = "auto";
+  p.source = "0.1st to 99.9th percentile of the volume's values";
+  const double binWidth = histogram.empty() ? hi - lo : (hi - lo) / static_cast<double>(histogram.size());
+  int64_t total = 0;
+  for (const int c : histogram) total += c;
+  if (total == 0 || !(hi > lo)) {
+    p.window = std::max(hi - lo, 1.0);
+    p.level = 0.5 * (lo + hi);
+    return p;
+  }
+  // The value below which `fraction` of the samples lie.
+  auto percentile = [&](double fraction) {
+    const double target = fraction * static_cast<double>(total);
+    double below = 0;
+    for (std::size_t b = 0; b < histogram.size(); ++b) {
+      const double count = histogram[b];
+      if (count > 0 && below + count >= target) {
+        return lo + (static_cast<double>(b) + (target - below) / count) * binWidth;
+      }
+      below += count;
+    }
+    return hi;
+  };
+  const double low = percentile(0.001), high = percentile(0.999);
+  p.window = std::max(high - low, binWidth);
+  p.level = 0.5 * (low + high);
+  return p;
 }
 
 }  // namespace octoray::viewer

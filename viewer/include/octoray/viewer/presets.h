@@ -22,4 +22,12 @@ void saveWindowLevelPresets(const std::vector<WindowLevelPreset>& presets,
 // $OCTORAY_WL_PRESETS when set, else viewer/presets/window-level.json of the source tree.
 std::filesystem::path defaultWindowLevelPresetsPath();
 
+// Automatic window/level, named "auto" (Weasis' key 0; Slicer's auto W/L takes the same
+// percentiles): the window spans the 0.1st to the 99.9th percentile of the volume's values and
+// the level is its centre. `histogram` counts the values in equal bins over [lo, hi]; a
+// percentile is interpolated linearly inside its bin. The window is at least one bin wide; an
+// empty histogram gives the whole range. Values and window are in the volume's unit, whatever
+// it is: this is what a volume without Hounsfield units (MR, or a file without units) opens with.
+WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi);
+
 }  // namespace octoray::viewer
