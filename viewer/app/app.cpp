@@ -247,6 +247,7 @@ void App::resetForDataset(const std::string& source) {
   wlAtOpen_ = session.wl;
   wlPresetAtOpen_ = session.wlPreset;
   wlChosenForDataset_ = false;
+  autoWlPreviewFraction_ = 0;
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
 }
@@ -307,13 +308,8 @@ void App::onDatasetReady() {
   computeHistogram();
   valueUnit_ = dataset_->info().unit;
   // CT windows mean nothing for values without Hounsfield units: such a volume opens with the
-  // auto window/level, as does any volume while "auto" is chosen; not where a session or --wl
-  // brings a window, or the reader set one while the volume was importing.
-  const bool wlUntouched = session.wl.window == wlAtOpen_.window && session.wl.level == wlAtOpen_.level &&
-                           session.wlPreset == wlPresetAtOpen_ && !wlChosenForDataset_;
-  if (autoWlPending_ || (!sessionLoaded_ && wlUntouched && (valueUnit_ != "HU" || session.wlPreset == "auto"))) {
-    applyAutoWindowLevel();
-  }
+  // auto window/level from the store's histogram (replacing the preview's, below).
+  if (autoWindowLevelDue()) applyAutoWindowLevel();
   autoWlPending_ = false;
   // A fresh dataset starts centred; a session's own crosshair and camera are kept.
   if (!sessionLoaded_) {
@@ -378,6 +374,13 @@ void App::markInteraction() { interactionFrames_ = 3; }
 void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
   session.wl = {p.window, p.level};
   session.wlPreset = p.name;
+}
+
+bool App::autoWindowLevelDue() const {
+  if (autoWlPending_) return true;
+  const bool untouched = session.wl.window == wlAtOpen_.window && session.wl.level == wlAtOpen_.level &&
+                         session.wlPreset == wlPresetAtOpen_;
+  return !sessionLoaded_ && !wlChosenForDataset_ && untouched && (valueUnit_ != "HU" || session.wlPreset == "auto");
 }
 
 void App::applyAutoWindowLevel() {
@@ -664,6 +667,22 @@ void App::frame() {
     valueUnit_ = dataset_->info().unit;
     if (!sessionLoaded_ && !crosshairSet_) session.crosshair = grid_->centre();
     crosshairSet_ = true;
+  }
+  // While a volume without HU is imported or arrives, its preview shows with the auto
+  // window/level of the slices in so far, taken again each time their share doubles, until
+  // the reader sets a window; the store's histogram gives the last one.
+  if (preview && grid_ && autoWindowLevelDue()) {
+    const double fraction = preview->fraction();
+    double lo = 0, hi = 0;
+    if (fraction > 0 && fraction >= 2 * autoWlPreviewFraction_) {
+      const std::vector<int> counts = preview->histogram(256, lo, hi);
+      if (!counts.empty()) {
+        applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
+        wlAtOpen_ = session.wl;  // "untouched" now means: since this auto window
+        wlPresetAtOpen_ = session.wlPreset;
+        autoWlPreviewFraction_ = fraction;
+      }
+    }
   }
   if (preview) {
     for (int v = 0; v < 3; ++v) {

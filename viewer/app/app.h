@@ -324,6 +324,10 @@ class App {
   std::string wlPresetAtOpen_;
   bool wlChosenForDataset_ = false;  // --wl named a preset for the volume on the command line
   bool autoWlPending_ = false;       // "auto" asked for before the histogram exists
+  double autoWlPreviewFraction_ = 0; // the preview's fraction when auto was last taken from it
+  // The auto window/level is due: the volume has no HU or "auto" is chosen, and neither a
+  // session, --wl nor the reader has set a window since the dataset opened (or since auto).
+  bool autoWindowLevelDue() const;
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

@@ -7,6 +7,7 @@
 #include <xxhash.h>
 
 #include <chrono>
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -126,6 +127,34 @@ void PreviewVolume::fill(VolumeSource& source, const std::atomic<bool>& cancel) 
 
 double PreviewVolume::fraction() const {
   return static_cast<double>(slicesDone_.load()) / static_cast<double>(dims_[2]);
+}
+
+std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) const {
+  const std::size_t sliceSize = static_cast<std::size_t>(dims_[0] * dims_[1]);
+  std::vector<std::size_t> shown;
+  for (int64_t k = 0; k < dims_[2]; ++k) {
+    if (sliceDone_[static_cast<std::size_t>(k)].load(std::memory_order_acquire)) shown.push_back(static_cast<std::size_t>(k));
+  }
+  lo = std::numeric_limits<double>::infinity();
+  hi = -lo;
+  for (const std::size_t k : shown) {
+    for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
+      if (std::isnan(values_[p])) continue;
+      lo = std::min(lo, static_cast<double>(values_[p]));
+      hi = std::max(hi, static_cast<double>(values_[p]));
+    }
+  }
+  if (!(hi >= lo)) return {};
+  hi = std::max(hi, lo + 1);  // as the store's histogram: never an empty range
+  std::vector<int> counts(static_cast<std::size_t>(bins), 0);
+  for (const std::size_t k : shown) {
+    for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
+      if (std::isnan(values_[p])) continue;
+      const int bin = std::clamp(static_cast<int>((values_[p] - lo) / (hi - lo) * bins), 0, bins - 1);
+      ++counts[static_cast<std::size_t>(bin)];
+    }
+  }
+  return counts;
 }
 
 double PreviewVolume::sample(Vec3 q, const std::vector<uint8_t>& done) const {

@@ -52,6 +52,9 @@ class PreviewVolume {
   // A slice like StoreSlicer::slice (level ignored); NaN where the preview has no data yet.
   Slice slice(const SliceRequest& request) const;
   double fraction() const;
+  // The values of the slices shown so far, counted in `bins` equal bins over their range
+  // [lo, hi] (what the auto window/level reads while a volume arrives); empty before any.
+  std::vector<int> histogram(int bins, double& lo, double& hi) const;
 
  private:
   // NaN outside or where a slice it needs is not in `done` (a snapshot of sliceDone_).
