@@ -36,6 +36,16 @@ XXH128_hash_t hashFile(const std::string& path) {
 
 }  // namespace
 
+bool holdsHounsfieldUnits(const std::string& unit, const std::string& modality, bool integerValues,
+                          double minimum, bool* guessed) {
+  if (guessed) *guessed = false;
+  if (unit == "HU" || modality == "CT") return true;
+  if (!modality.empty()) return false;
+  const bool looksLikeCt = integerValues && minimum <= -900 && minimum >= -3100;
+  if (guessed) *guessed = looksLikeCt;
+  return looksLikeCt;
+}
+
 std::string fileContentHash(const std::string& file) {
   XXH128_canonical_t digest;
   XXH128_canonicalFromHash(&digest, hashFile(file));

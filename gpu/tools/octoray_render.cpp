@@ -79,11 +79,9 @@ void writeOutputs(const gpu::Image& image, const Arguments& a) {
 }
 
 // Whether a volume holds Hounsfield units, and its value range: what choosing a default
-// transfer function needs. A store says so in its provenance and root node; other inputs in
-// their VolumeInfo, their range read in one pass. Volumes that do not say (NRRD, NIfTI, raw)
-// but whose integer values reach down to air (-900 HU or below, not below -3100) are taken as
-// CT, as clinicians' CT exports in those formats are; a store of such a volume too, whatever
-// its sample format, as its provenance records whether the source's values were integers.
+// transfer function needs (holdsHounsfieldUnits of volume_source.h: what the source says, or,
+// where it says nothing, integer values reaching down to air). A store from its provenance and
+// root node; other inputs from their VolumeInfo, their range read in one pass.
 struct ValueKind {
   bool hounsfield = false;
   bool guessed = false;  // hounsfield from the values alone
@@ -92,44 +90,30 @@ struct ValueKind {
 
 ValueKind valueKind(const std::string& path) {
   ValueKind kind;
-  bool integer = true;
   if (volume::isStoreFile(path)) {
     const volume::StoreReader store(path);
-    const volume::StoreSource& source = store.source();
-    kind.hounsfield = source.unit == "HU" || source.modality == "CT";
+    kind.hounsfield = volume::storeHoldsHounsfieldUnits(store, &kind.guessed);
     kind.lo = store.node(0).minValue;
     kind.hi = store.node(0).maxValue;
-    // Whether the source's values were integers: the provenance says so (a float32 store of
-    // integer data too); stores from before it did are judged by their sample format.
-    integer = source.integerValues
-                  ? *source.integerValues
-                  : store.sampleFormat() == volume::SampleFormat::UInt16 &&
-                        store.header().valueScale == 1.0 &&
-                        store.header().valueOffset == std::round(store.header().valueOffset);
-  } else {
-    const auto source = openVolume(path);
-    const VolumeInfo& info = source->info();
-    kind.hounsfield = info.unit == "HU" || info.modality == "CT";
-    integer = info.integerValues;
-    kind.lo = std::numeric_limits<double>::infinity();
-    kind.hi = -kind.lo;
-    const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
-    std::vector<float> buffer;
-    for (int64_t k = 0; k < info.dims[2]; k += slab) {
-      const int64_t n = std::min(slab, info.dims[2] - k);
-      buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
-      source->readSlab(k, n, buffer);
-      for (const float v : buffer) {
-        if (!std::isfinite(v)) continue;
-        kind.lo = std::min(kind.lo, static_cast<double>(v));
-        kind.hi = std::max(kind.hi, static_cast<double>(v));
-      }
+    return kind;
+  }
+  const auto source = openVolume(path);
+  const VolumeInfo& info = source->info();
+  kind.lo = std::numeric_limits<double>::infinity();
+  kind.hi = -kind.lo;
+  const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
+  std::vector<float> buffer;
+  for (int64_t k = 0; k < info.dims[2]; k += slab) {
+    const int64_t n = std::min(slab, info.dims[2] - k);
+    buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
+    source->readSlab(k, n, buffer);
+    for (const float v : buffer) {
+      if (!std::isfinite(v)) continue;
+      kind.lo = std::min(kind.lo, static_cast<double>(v));
+      kind.hi = std::max(kind.hi, static_cast<double>(v));
     }
   }
-  if (!kind.hounsfield && integer && kind.lo <= -900 && kind.lo >= -3100) {
-    kind.hounsfield = true;
-    kind.guessed = true;
-  }
+  kind.hounsfield = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, kind.lo, &kind.guessed);
   return kind;
 }
 

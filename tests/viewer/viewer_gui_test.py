@@ -378,7 +378,10 @@ class ViewerGui(unittest.TestCase):
 
     # A volume without Hounsfield units (pydicom's MR slice, values 127-2145): CT's windows
     # would show it white. It opens with the auto window/level, the 0.1st to 99.9th percentile
-    # of its values, and reports no unit; key 1 gives a CT preset, key 0 the auto one again.
+    # of its values, the grey-ramp transfer function of octoray-render's default for such values,
+    # and reports no unit; key 1 gives a CT preset, key 0 the auto one again, which stays chosen
+    # for the next volume. A CT opened after the automatic auto gets the CT defaults back; a
+    # window the script sets before the volume is ready is kept.
     def test_volume_without_hounsfield_units_opens_with_auto_window(self):
         import pydicom
         mr = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", "MR_small.dcm")
@@ -396,11 +399,15 @@ class ViewerGui(unittest.TestCase):
             {"type": "dump-state", "path": vw.path("brain.json")},
             {"type": "key", "key": "0"},
             {"type": "dump-state", "path": vw.path("auto.json")},
+            {"type": "action", "name": "open", "value": self.head_store},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("ct-after-chosen-auto.json")},
         ]
         vw.run(folder, steps)
         state = load_json(vw.path("opened.png.json"))
         self.assertEqual(state["dataset"]["state"], "ready")
         self.assertEqual(state["dataset"]["unit"], "")
+        self.assertEqual(state["session"]["preset"], "default-dvr")
         wl = state["session"]["windowLevel"]
         self.assertEqual(wl["preset"], "auto")
         values = pydicom.dcmread(mr).pixel_array.astype(np.float64)
@@ -419,6 +426,30 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual((brain["window"], brain["level"], brain["preset"]), (80, 40, "brain"))
         again = load_json(vw.path("auto.json"))["session"]["windowLevel"]
         self.assertEqual(again, wl)
+        ct = load_json(vw.path("ct-after-chosen-auto.json"))
+        self.assertEqual(ct["dataset"]["unit"], "HU")
+        self.assertEqual(ct["session"]["windowLevel"]["preset"], "auto")  # chosen: it stays
+        self.assertNotEqual(ct["session"]["windowLevel"]["window"], wl["window"])
+        self.assertEqual(ct["session"]["preset"], "bone")
+        # The automatic auto does not stay: a CT opened next gets the first CT preset and the
+        # bone transfer function; and a window set while the MR was not yet ready is kept.
+        vw.run(folder, [
+            {"type": "action", "name": "wl-preset", "value": "brain"},  # the values CT opens with
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("mr-brain.json")},
+        ])
+        mr_brain = load_json(vw.path("mr-brain.json"))["session"]["windowLevel"]
+        self.assertEqual((mr_brain["window"], mr_brain["level"], mr_brain["preset"]), (80, 40, "brain"))
+        vw.run(folder, [
+            {"type": "wait-converged"},
+            {"type": "action", "name": "open", "value": self.head_store},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("ct-after-auto-mr.json")},
+        ])
+        ct = load_json(vw.path("ct-after-auto-mr.json"))["session"]
+        self.assertEqual((ct["windowLevel"]["window"], ct["windowLevel"]["level"], ct["windowLevel"]["preset"]),
+                         (80, 40, "brain"))
+        self.assertEqual(ct["preset"], "bone")
 
     # The same while a series without HU arrives from a PACS (octoray's synthetic series
     # relabelled MR): the slices in so far show with the auto window/level of those slices,

@@ -178,6 +178,48 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
   EXPECT_EQ(ct.integerValues, std::optional<bool>(true));
 }
 
+// Whether a store holds Hounsfield units (what the viewer's windows, labels and default
+// transfer function, and octoray-render's defaults, follow): what the source says, else integer
+// values reaching down to air. The same rule on the source's fields directly.
+TEST(StoreBuild, HounsfieldUnitsAreWhatTheSourceSaysOrIntegerValuesDownToAir) {
+  const auto dir = test::freshTempDir("store_hounsfield");
+  struct Case {
+    const char* name;
+    float minimum;
+    std::string unit;
+    bool integer;
+    bool hounsfield, guessed;
+  };
+  const Case cases[] = {
+      {"said", 0, "HU", true, true, false},            // unit HU: whatever the values
+      {"air", -1024, "", true, true, true},            // NIfTI CT without units
+      {"padding", -3024, "", true, true, true},        // outside the field of view
+      {"no-air", -500, "", true, false, false},        // nothing down to air
+      {"below", -3200, "", true, false, false},        // below any CT value
+      {"floats", -1024, "", false, false, false},      // not integers: not judged
+  };
+  for (const Case& c : cases) {
+    MemoryVolume volume({20, 18, 16}, [&](int64_t i, int64_t j, int64_t k) {
+      return i + j + k == 0 ? c.minimum : 100.0f + static_cast<float>(i) + (c.integer ? 0.0f : 0.5f);
+    }, c.unit, c.integer);
+    BuildOptions options;
+    options.brickSize = 16;
+    const std::string path = (dir / (std::string(c.name) + ".octoray")).string();
+    buildStore(volume, path, options);
+    const StoreReader store(path);
+    bool guessed = !c.guessed;
+    EXPECT_EQ(storeHoldsHounsfieldUnits(store, &guessed), c.hounsfield) << c.name;
+    EXPECT_EQ(guessed, c.guessed) << c.name;
+  }
+  // A DICOM modality other than CT says no, whatever the values.
+  bool guessed = true;
+  EXPECT_FALSE(holdsHounsfieldUnits("", "MR", true, -1024, &guessed));
+  EXPECT_FALSE(guessed);
+  EXPECT_TRUE(holdsHounsfieldUnits("", "CT", false, 0, &guessed));
+  EXPECT_FALSE(guessed);
+  EXPECT_FALSE(holdsHounsfieldUnits("", "", true, std::numeric_limits<double>::quiet_NaN()));
+}
+
 TEST(StoreBuild, CodecsAreLossless) {
   MemoryVolume volume({50, 45, 40}, [](int64_t i, int64_t j, int64_t k) {
     return static_cast<float>((i * 7 + j * 13 + k * 29) % 2000 - 1000);

@@ -20,6 +20,7 @@
 
 #include "octoray/core/error.h"
 #include "octoray/gpu/image_io.h"
+#include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function_io.h"
 
 namespace octoray::viewer {
@@ -199,7 +200,7 @@ App::App(const AppOptions& options) : options_(options) {
                                  [&](const auto& p) { return p.name == options_.wlPreset; });
     if (it == wlPresets.end()) throw Error("", fmt::format("--wl \"{}\": no such window/level preset", options_.wlPreset));
     applyWindowLevelPreset(*it);
-    wlChosenForDataset_ = true;
+    windowLevelChosen();
   }
   if (!options_.camera.empty()) {
     const gpu::Camera c = gpu::loadCamera(options_.camera);
@@ -244,9 +245,8 @@ void App::resetForDataset(const std::string& source) {
   session.source = source;
   session.measurements.clear();
   valueUnit_.clear();
-  wlAtOpen_ = session.wl;
-  wlPresetAtOpen_ = session.wlPreset;
-  wlChosenForDataset_ = false;
+  sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
+  wlChosenForDataset_ = tfChosenForDataset_ = false;
   autoWlPreviewFraction_ = 0;
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
@@ -306,11 +306,21 @@ void App::onDatasetReady() {
     if (!mpr_[static_cast<std::size_t>(v)]) mpr_[static_cast<std::size_t>(v)] = std::make_unique<MprView>(static_cast<ViewId>(v));
   }
   computeHistogram();
-  valueUnit_ = dataset_->info().unit;
-  // CT windows mean nothing for values without Hounsfield units: such a volume opens with the
-  // auto window/level from the store's histogram (replacing the preview's, below).
-  if (autoWindowLevelDue()) applyAutoWindowLevel();
-  autoWlPending_ = false;
+  valueUnit_ = volume::storeHoldsHounsfieldUnits(*store) ? "HU" : "";
+  // The store's histogram replaces the preview's auto window; a volume without HU gets the
+  // grey ramp for its values in 3D (as octoray-render's default), a CT after one the bone preset.
+  applyAutomaticWindowLevel(histogram_, histLo_, histHi_);
+  if (!sessionLoaded_ && !tfChosenForDataset_ && session.mode != gpu::RaycastMode::Iso) {
+    const bool generated = session.preset.starts_with("default-");
+    if (valueUnit_ != "HU") {
+      const auto mode = session.mode == gpu::RaycastMode::Mip ? transfer::DefaultMode::Mip : transfer::DefaultMode::Dvr;
+      session.tf = transfer::defaultTransferFunction(mode, false, histLo_, histHi_).tf;
+      session.preset = session.tf.name;
+    } else if (generated) {
+      session.tf = transfer::findPreset("bone");
+      session.preset = "bone";
+    }
+  }
   // A fresh dataset starts centred; a session's own crosshair and camera are kept.
   if (!sessionLoaded_) {
     if (!crosshairSet_) session.crosshair = grid_->centre();
@@ -376,20 +386,34 @@ void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
   session.wlPreset = p.name;
 }
 
-bool App::autoWindowLevelDue() const {
-  if (autoWlPending_) return true;
-  const bool untouched = session.wl.window == wlAtOpen_.window && session.wl.level == wlAtOpen_.level &&
-                         session.wlPreset == wlPresetAtOpen_;
-  return !sessionLoaded_ && !wlChosenForDataset_ && untouched && (valueUnit_ != "HU" || session.wlPreset == "auto");
+void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi) {
+  if (sessionLoaded_ || wlChosenForDataset_ || counts.empty()) return;
+  if (autoWlChosen_ || valueUnit_ != "HU") {
+    applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
+  } else if (session.wlPreset == "auto" && !wlPresets.empty()) {
+    applyWindowLevelPreset(wlPresets.front());  // a CT after a volume without HU
+  }
+}
+
+void App::judgeValueUnit(double minimum) {
+  const VolumeInfo info = dataset_->info();
+  valueUnit_ = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, minimum) ? "HU" : "";
+}
+
+void App::windowLevelChosen() {
+  wlChosenForDataset_ = true;
+  autoWlChosen_ = false;
 }
 
 void App::applyAutoWindowLevel() {
-  if (histogram_.empty()) {
-    autoWlPending_ = true;
-    session.wlPreset = "auto";
-    return;
+  autoWlChosen_ = true;
+  wlChosenForDataset_ = false;
+  session.wlPreset = "auto";
+  if (!histogram_.empty()) {
+    applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
+  } else {
+    autoWlPreviewFraction_ = 0;  // the preview's histogram gives it at the next frame
   }
-  applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
 }
 
 void App::applyWindowLevelKey(int key) {
@@ -400,6 +424,7 @@ void App::applyWindowLevelKey(int key) {
   for (const auto& p : wlPresets) {
     if (p.key == key) {
       applyWindowLevelPreset(p);
+      windowLevelChosen();
       return;
     }
   }
@@ -418,6 +443,7 @@ void App::selectTfPreset(const std::string& name) {
     }
     session.tf = tf;
     session.preset = name;
+    tfChosenForDataset_ = true;
   } catch (const Error& e) {
     messages.push_back(e.what());
   }
@@ -664,22 +690,23 @@ void App::frame() {
   const PreviewVolume* preview = dataset_ && !slicer_ ? dataset_->preview() : nullptr;
   if (preview && !grid_) {
     grid_ = preview->grid();
-    valueUnit_ = dataset_->info().unit;
+    judgeValueUnit(std::numeric_limits<double>::quiet_NaN());  // what the source says, for now
     if (!sessionLoaded_ && !crosshairSet_) session.crosshair = grid_->centre();
     crosshairSet_ = true;
   }
-  // While a volume without HU is imported or arrives, its preview shows with the auto
-  // window/level of the slices in so far, taken again each time their share doubles, until
-  // the reader sets a window; the store's histogram gives the last one.
-  if (preview && grid_ && autoWindowLevelDue()) {
+  // While a volume is imported or arrives, the slices in so far are looked at again each time
+  // their share doubles: their lowest value judges the unit where the source does not say it,
+  // and a volume without HU (or "auto") shows with the auto window/level of those slices,
+  // until the reader sets a window; the store's histogram gives the last one.
+  const bool judging = valueUnit_ != "HU" || autoWlChosen_ || session.wlPreset == "auto";
+  if (preview && grid_ && judging && !sessionLoaded_ && !wlChosenForDataset_) {
     const double fraction = preview->fraction();
-    double lo = 0, hi = 0;
     if (fraction > 0 && fraction >= 2 * autoWlPreviewFraction_) {
+      double lo = 0, hi = 0;
       const std::vector<int> counts = preview->histogram(256, lo, hi);
       if (!counts.empty()) {
-        applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
-        wlAtOpen_ = session.wl;  // "untouched" now means: since this auto window
-        wlPresetAtOpen_ = session.wlPreset;
+        judgeValueUnit(lo);
+        applyAutomaticWindowLevel(counts, lo, hi);
         autoWlPreviewFraction_ = fraction;
       }
     }

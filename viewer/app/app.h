@@ -209,9 +209,13 @@ class App {
   std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
   void applyWindowLevelKey(int key);  // 1-9: the table's presets; 0: auto
-  // The window/level "auto" (presets.h) from the volume's histogram; before the volume is
-  // ready, once it is.
+  // The window/level "auto" (presets.h), chosen by the reader: from the store's histogram, or
+  // while the volume is imported from its preview's and again once the store is ready. It stays
+  // chosen for the volumes opened next, until the reader picks another window.
   void applyAutoWindowLevel();
+  // The reader set a window (a preset, a drag, the panel, a script, --wl): no automatic one
+  // replaces it for this volume.
+  void windowLevelChosen();
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
   // units); empty before the source's headers are read. Every value label follows it.
   const std::string& valueUnit() const { return valueUnit_; }
@@ -318,16 +322,19 @@ class App {
   double frameMs_ = 0;
   bool sessionLoaded_ = false;       // the session being opened brings its own camera/crosshair
   std::string valueUnit_;
-  // The window/level when the dataset was opened: a volume without HU opens with the auto
-  // window/level unless the reader (or --wl) set one meanwhile.
-  WindowLevel wlAtOpen_;
-  std::string wlPresetAtOpen_;
-  bool wlChosenForDataset_ = false;  // --wl named a preset for the volume on the command line
-  bool autoWlPending_ = false;       // "auto" asked for before the histogram exists
+  // Automatic windows and transfer function. A volume without HU opens with the auto
+  // window/level and the grey-ramp transfer function of transfer/defaults.h (CT windows and
+  // presets mean nothing for its values), unless a session, the command line or the reader
+  // chose one for it; a CT opened after it gets the CT defaults back.
+  bool wlChosenForDataset_ = false;  // the reader set a window for this volume
+  bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
+  bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
   double autoWlPreviewFraction_ = 0; // the preview's fraction when auto was last taken from it
-  // The auto window/level is due: the volume has no HU or "auto" is chosen, and neither a
-  // session, --wl nor the reader has set a window since the dataset opened (or since auto).
-  bool autoWindowLevelDue() const;
+  // Applies the automatic window/level where due: auto, the startup default for a CT after an
+  // automatic auto, or nothing. From the store's histogram, or the preview's (counts, lo, hi).
+  void applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi);
+  // The unit from what the source says and the lowest value seen (holdsHounsfieldUnits).
+  void judgeValueUnit(double minimum);
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

@@ -211,6 +211,7 @@ void Controller::move(const InputEvent& e) {
     s.wl.window = std::max(1.0, d.startWl.window + dx * gain);
     s.wl.level = d.startWl.level - dy * gain;
     s.wlPreset.clear();
+    app_.windowLevelChosen();
   } else if (t == Tool::Crosshair) {
     s.crosshair = p;
   } else if (pending_ && pending_->kind != MeasureKind::Angle && pending_->points.size() == 2) {

@@ -34,10 +34,10 @@ void App::loadSessionFrom(const std::string& path) {
     const bool reopen = !dataset_ || loaded.source != dataset_->path();
     session = loaded;
     if (reopen) {
-      sessionLoaded_ = true;
       const Session keep = session;
       open(session.source);
       session = keep;
+      sessionLoaded_ = true;  // its window, transfer function, camera and crosshair stay
     }
   } catch (const Error& e) {
     messages.push_back(e.what());

@@ -137,10 +137,12 @@ void App::drawPanels() {
     if (ImGui::InputDouble(("window" + unit + "###window").c_str(), &w, 10, 100, "%.0f")) {
       session.wl.window = std::max(1.0, w);
       session.wlPreset.clear();
+      windowLevelChosen();
     }
     if (ImGui::InputDouble(("level" + unit + "###level").c_str(), &l, 10, 100, "%.0f")) {
       session.wl.level = l;
       session.wlPreset.clear();
+      windowLevelChosen();
     }
     if (ImGui::BeginTable("wl", 4, ImGuiTableFlags_BordersInnerH | ImGuiTableFlags_SizingStretchProp)) {
       ImGui::TableSetupColumn("key");
@@ -155,7 +157,10 @@ void App::drawPanels() {
         ImGui::TableNextColumn();
         ImGui::Text("%d", p.key);
         ImGui::TableNextColumn();
-        if (ImGui::Selectable(p.name.c_str(), session.wlPreset == p.name)) applyWindowLevelPreset(p);
+        if (ImGui::Selectable(p.name.c_str(), session.wlPreset == p.name)) {
+          applyWindowLevelPreset(p);
+          windowLevelChosen();
+        }
         if (ImGui::IsItemHovered() && !p.source.empty()) ImGui::SetTooltip("%s", p.source.c_str());
         ImGui::TableNextColumn();
         ImGui::SetNextItemWidth(-1);

@@ -171,10 +171,12 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == n; });
     if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", n));
     applyWindowLevelPreset(*it);
+    windowLevelChosen();
   } else if (name == "window-level") {
     if (!value.is_array() || value.size() != 2) throw Error("", "action window-level: expected [window, level]");
     session.wl = {value[0].get<double>(), value[1].get<double>()};
     session.wlPreset.clear();
+    windowLevelChosen();
   } else if (name == "mode") session.mode = parseModeName(text());
   else if (name == "iso") session.isoValue = number();
   else if (name == "lod-pixels") session.lodPixels = number();

@@ -73,6 +73,14 @@ std::string sourceContentHash(const std::vector<std::string>& files);
 std::string fileContentHash(const std::string& file);
 std::string combinedContentHash(std::vector<std::string> fileHashes);
 
+// Whether a volume's values are Hounsfield units, what its default windows and transfer
+// functions follow. The source says yes with unit "HU" or DICOM modality "CT", and no with any
+// other modality. Where it says nothing (NRRD, NIfTI, MetaImage, raw or TIFF without units),
+// integer values reaching down to air, a minimum from -3100 to -900, are taken as CT, as
+// clinicians' CT exports in those formats are; `guessed` (optional) is set in that case.
+bool holdsHounsfieldUnits(const std::string& unit, const std::string& modality, bool integerValues,
+                          double minimum, bool* guessed = nullptr);
+
 // Checks a slab request against the volume; throws octoray::Error naming `path` if invalid.
 void checkSlabRequest(const VolumeInfo& info, int64_t firstSlice, int64_t sliceCount,
                       std::size_t outSize);

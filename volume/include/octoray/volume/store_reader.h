@@ -96,6 +96,11 @@ class StoreReader {
   StoreSource source_;
 };
 
+// Whether a store's values are Hounsfield units (holdsHounsfieldUnits of volume_source.h, from
+// its provenance and its root's minimum). Whether the source's values were integers comes from
+// the provenance; stores from before it said are judged by their sample format.
+bool storeHoldsHounsfieldUnits(const StoreReader& store, bool* guessed = nullptr);
+
 // Parses and checks a header from raw bytes (used by the reader and the fuzz target).
 // `fileBytes` is the actual size of the file it came from.
 StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileBytes,
