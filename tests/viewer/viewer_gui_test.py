@@ -395,6 +395,9 @@ class ViewerGui(unittest.TestCase):
             {"type": "action", "name": "overlays", "value": False},
             {"type": "wait-converged"},
             {"type": "screenshot", "path": vw.path("opened.png")},
+            {"type": "action", "name": "mode", "value": "mip"},
+            {"type": "dump-state", "path": vw.path("mip.json")},
+            {"type": "action", "name": "mode", "value": "dvr"},
             {"type": "key", "key": "1"},
             {"type": "dump-state", "path": vw.path("brain.json")},
             {"type": "key", "key": "0"},
@@ -422,6 +425,9 @@ class ViewerGui(unittest.TestCase):
         got = crop(shot, state["views"]["axial"]["rect"])[:, :, 0]
         inside = ~np.isnan(oracle.plane_values(state["views"]["axial"]["plane"]))
         self.assertLess(float(np.mean(got[inside] == 255)), 0.02, "the slice is white: a CT window")
+        # The generated transfer function follows the mode: a grey ramp over the values for MIP.
+        self.assertEqual(load_json(vw.path("mip.json"))["session"]["preset"], "default-mip")
+        self.assertEqual(load_json(vw.path("brain.json"))["session"]["preset"], "default-dvr")
         brain = load_json(vw.path("brain.json"))["session"]["windowLevel"]
         self.assertEqual((brain["window"], brain["level"], brain["preset"]), (80, 40, "brain"))
         again = load_json(vw.path("auto.json"))["session"]["windowLevel"]
@@ -431,8 +437,9 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(ct["session"]["windowLevel"]["preset"], "auto")  # chosen: it stays
         self.assertNotEqual(ct["session"]["windowLevel"]["window"], wl["window"])
         self.assertEqual(ct["session"]["preset"], "bone")
-        # The automatic auto does not stay: a CT opened next gets the first CT preset and the
-        # bone transfer function; and a window set while the MR was not yet ready is kept.
+        # The automatic auto does not stay: a CT opened next, here a NIfTI file that does not
+        # say its values are HU (judged from them, as octoray-render does), gets the first CT
+        # preset and the bone transfer function; a window set before the MR was ready is kept.
         vw.run(folder, [
             {"type": "action", "name": "wl-preset", "value": "brain"},  # the values CT opens with
             {"type": "wait-converged"},
@@ -440,13 +447,18 @@ class ViewerGui(unittest.TestCase):
         ])
         mr_brain = load_json(vw.path("mr-brain.json"))["session"]["windowLevel"]
         self.assertEqual((mr_brain["window"], mr_brain["level"], mr_brain["preset"]), (80, 40, "brain"))
+        nifti = vw.path("head-5mm.nii.gz")
+        p = run([os.path.join(BIN, "octoray-import"), "--export", nifti, os.path.join(PHILIPS, "S21570/S2010")])
+        self.assertEqual(p.returncode, 0, p.stderr)
         vw.run(folder, [
             {"type": "wait-converged"},
-            {"type": "action", "name": "open", "value": self.head_store},
+            {"type": "action", "name": "open", "value": nifti},
             {"type": "wait-converged"},
             {"type": "dump-state", "path": vw.path("ct-after-auto-mr.json")},
         ])
-        ct = load_json(vw.path("ct-after-auto-mr.json"))["session"]
+        state = load_json(vw.path("ct-after-auto-mr.json"))
+        self.assertEqual(state["dataset"]["unit"], "HU")
+        ct = state["session"]
         self.assertEqual((ct["windowLevel"]["window"], ct["windowLevel"]["level"], ct["windowLevel"]["preset"]),
                          (80, 40, "brain"))
         self.assertEqual(ct["preset"], "bone")

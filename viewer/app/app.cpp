@@ -192,7 +192,10 @@ App::App(const AppOptions& options) : options_(options) {
   }
   if (!options_.layout.empty()) setLayout(parseLayoutName(options_.layout));
   if (!options_.preset.empty()) selectTfPreset(options_.preset);
-  if (!options_.mode.empty()) session.mode = parseModeName(options_.mode);
+  if (!options_.mode.empty()) {
+    session.mode = parseModeName(options_.mode);
+    modeChanged();
+  }
   if (options_.wlPreset == "auto") {
     applyAutoWindowLevel();
   } else if (!options_.wlPreset.empty()) {
@@ -200,7 +203,7 @@ App::App(const AppOptions& options) : options_(options) {
                                  [&](const auto& p) { return p.name == options_.wlPreset; });
     if (it == wlPresets.end()) throw Error("", fmt::format("--wl \"{}\": no such window/level preset", options_.wlPreset));
     applyWindowLevelPreset(*it);
-    windowLevelChosen();
+    windowLevelChosen(true);
   }
   if (!options_.camera.empty()) {
     const gpu::Camera c = gpu::loadCamera(options_.camera);
@@ -308,19 +311,10 @@ void App::onDatasetReady() {
   computeHistogram();
   valueUnit_ = volume::storeHoldsHounsfieldUnits(*store) ? "HU" : "";
   // The store's histogram replaces the preview's auto window; a volume without HU gets the
-  // grey ramp for its values in 3D (as octoray-render's default), a CT after one the bone preset.
+  // grey ramp for its values in 3D (as octoray-render's default), a CT after one the CT default.
+  if (wlUnit_ == "?") wlUnit_ = valueUnit_;
   applyAutomaticWindowLevel(histogram_, histLo_, histHi_);
-  if (!sessionLoaded_ && !tfChosenForDataset_ && session.mode != gpu::RaycastMode::Iso) {
-    const bool generated = session.preset.starts_with("default-");
-    if (valueUnit_ != "HU") {
-      const auto mode = session.mode == gpu::RaycastMode::Mip ? transfer::DefaultMode::Mip : transfer::DefaultMode::Dvr;
-      session.tf = transfer::defaultTransferFunction(mode, false, histLo_, histHi_).tf;
-      session.preset = session.tf.name;
-    } else if (generated) {
-      session.tf = transfer::findPreset("bone");
-      session.preset = "bone";
-    }
-  }
+  if (valueUnit_ != "HU" || session.preset.starts_with("default-")) applyDefaultTransferFunction();
   // A fresh dataset starts centred; a session's own crosshair and camera are kept.
   if (!sessionLoaded_) {
     if (!crosshairSet_) session.crosshair = grid_->centre();
@@ -387,12 +381,31 @@ void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
 }
 
 void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi) {
-  if (sessionLoaded_ || wlChosenForDataset_ || counts.empty()) return;
+  if (wlChosenForDataset_ || counts.empty()) return;
   if (autoWlChosen_ || valueUnit_ != "HU") {
     applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
-  } else if (session.wlPreset == "auto" && !wlPresets.empty()) {
-    applyWindowLevelPreset(wlPresets.front());  // a CT after a volume without HU
+    wlUnit_ = valueUnit_;
+  } else if (wlUnit_ != "HU" && !wlPresets.empty()) {
+    applyWindowLevelPreset(wlPresets.front());  // a CT after a window for other values
+    wlUnit_ = "HU";
   }
+}
+
+void App::applyDefaultTransferFunction() {
+  if (tfChosenForDataset_ || histogram_.empty()) return;
+  const transfer::DefaultMode mode = session.mode == gpu::RaycastMode::Mip   ? transfer::DefaultMode::Mip
+                                     : session.mode == gpu::RaycastMode::Iso ? transfer::DefaultMode::Iso
+                                                                             : transfer::DefaultMode::Dvr;
+  try {
+    session.tf = transfer::defaultTransferFunction(mode, valueUnit_ == "HU", histLo_, histHi_).tf;
+    session.preset = session.tf.name;
+  } catch (const Error& e) {
+    messages.push_back(e.what());
+  }
+}
+
+void App::modeChanged() {
+  if (session.preset.starts_with("default-")) applyDefaultTransferFunction();
 }
 
 void App::judgeValueUnit(double minimum) {
@@ -400,9 +413,11 @@ void App::judgeValueUnit(double minimum) {
   valueUnit_ = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, minimum) ? "HU" : "";
 }
 
-void App::windowLevelChosen() {
+void App::windowLevelChosen(bool tablePreset) {
   wlChosenForDataset_ = true;
   autoWlChosen_ = false;
+  // Before the store is ready the unit may still be judged: "?" until onDatasetReady says.
+  wlUnit_ = tablePreset ? "HU" : slicer_ ? valueUnit_ : "?";
 }
 
 void App::applyAutoWindowLevel() {
@@ -411,6 +426,7 @@ void App::applyAutoWindowLevel() {
   session.wlPreset = "auto";
   if (!histogram_.empty()) {
     applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
+    wlUnit_ = valueUnit_;
   } else {
     autoWlPreviewFraction_ = 0;  // the preview's histogram gives it at the next frame
   }
@@ -424,7 +440,7 @@ void App::applyWindowLevelKey(int key) {
   for (const auto& p : wlPresets) {
     if (p.key == key) {
       applyWindowLevelPreset(p);
-      windowLevelChosen();
+      windowLevelChosen(true);
       return;
     }
   }
@@ -698,8 +714,10 @@ void App::frame() {
   // their share doubles: their lowest value judges the unit where the source does not say it,
   // and a volume without HU (or "auto") shows with the auto window/level of those slices,
   // until the reader sets a window; the store's histogram gives the last one.
-  const bool judging = valueUnit_ != "HU" || autoWlChosen_ || session.wlPreset == "auto";
-  if (preview && grid_ && judging && !sessionLoaded_ && !wlChosenForDataset_) {
+  // The unit is judged while it is not known to be HU; the window while one is due.
+  const bool judging = valueUnit_ != "HU";
+  const bool windowDue = !wlChosenForDataset_ && (autoWlChosen_ || wlUnit_ != "HU");
+  if (preview && grid_ && (judging || windowDue)) {
     const double fraction = preview->fraction();
     if (fraction > 0 && fraction >= 2 * autoWlPreviewFraction_) {
       double lo = 0, hi = 0;

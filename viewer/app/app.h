@@ -213,9 +213,11 @@ class App {
   // while the volume is imported from its preview's and again once the store is ready. It stays
   // chosen for the volumes opened next, until the reader picks another window.
   void applyAutoWindowLevel();
-  // The reader set a window (a preset, a drag, the panel, a script, --wl): no automatic one
-  // replaces it for this volume.
-  void windowLevelChosen();
+  // The reader set a window (a preset, a drag, the panel, a script, --wl, a session): no
+  // automatic one replaces it for this volume. `tablePreset`: one of the table's CT windows.
+  void windowLevelChosen(bool tablePreset = false);
+  // The 3D mode changed: a generated default transfer function follows it.
+  void modeChanged();
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
   // units); empty before the source's headers are read. Every value label follows it.
   const std::string& valueUnit() const { return valueUnit_; }
@@ -329,7 +331,15 @@ class App {
   bool wlChosenForDataset_ = false;  // the reader set a window for this volume
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
+  // The unit of the values the current window was set for ("HU": a CT window; "?": set before
+  // the volume's unit was known). A CT opened after a window set for other values gets the
+  // table's first preset.
+  std::string wlUnit_ = "HU";
   double autoWlPreviewFraction_ = 0; // the preview's fraction when auto was last taken from it
+  // transfer/defaults.h's transfer function for the mode and the volume (CT or not), unless the
+  // reader chose one for this volume: on a volume without HU, and where the preset is such a
+  // generated default ("default-...").
+  void applyDefaultTransferFunction();
   // Applies the automatic window/level where due: auto, the startup default for a CT after an
   // automatic auto, or nothing. From the store's histogram, or the preview's (counts, lo, hi).
   void applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi);

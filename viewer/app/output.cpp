@@ -37,8 +37,11 @@ void App::loadSessionFrom(const std::string& path) {
       const Session keep = session;
       open(session.source);
       session = keep;
-      sessionLoaded_ = true;  // its window, transfer function, camera and crosshair stay
+      sessionLoaded_ = true;  // its camera and crosshair stay
     }
+    // Its window and transfer function stay too, whether the volume was open or not.
+    windowLevelChosen(false);
+    tfChosenForDataset_ = true;
   } catch (const Error& e) {
     messages.push_back(e.what());
   }

@@ -159,7 +159,7 @@ void App::drawPanels() {
         ImGui::TableNextColumn();
         if (ImGui::Selectable(p.name.c_str(), session.wlPreset == p.name)) {
           applyWindowLevelPreset(p);
-          windowLevelChosen();
+          windowLevelChosen(true);
         }
         if (ImGui::IsItemHovered() && !p.source.empty()) ImGui::SetTooltip("%s", p.source.c_str());
         ImGui::TableNextColumn();
@@ -188,7 +188,10 @@ void App::drawPanels() {
     ImGui::RadioButton("isosurface", &mode, 1);
     ImGui::SameLine();
     ImGui::RadioButton("MIP", &mode, 2);
-    session.mode = static_cast<gpu::RaycastMode>(mode);
+    if (mode != static_cast<int>(session.mode)) {
+      session.mode = static_cast<gpu::RaycastMode>(mode);
+      modeChanged();
+    }
     if (ImGui::BeginCombo("preset", session.preset.c_str())) {
       for (const auto& name : tfPresetNames) {
         if (ImGui::Selectable(name.c_str(), name == session.preset)) selectTfPreset(name);

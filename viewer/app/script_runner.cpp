@@ -171,13 +171,16 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == n; });
     if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", n));
     applyWindowLevelPreset(*it);
-    windowLevelChosen();
+    windowLevelChosen(true);
   } else if (name == "window-level") {
     if (!value.is_array() || value.size() != 2) throw Error("", "action window-level: expected [window, level]");
     session.wl = {value[0].get<double>(), value[1].get<double>()};
     session.wlPreset.clear();
     windowLevelChosen();
-  } else if (name == "mode") session.mode = parseModeName(text());
+  } else if (name == "mode") {
+    session.mode = parseModeName(text());
+    modeChanged();
+  }
   else if (name == "iso") session.isoValue = number();
   else if (name == "lod-pixels") session.lodPixels = number();
   else if (name == "step-factor") session.stepFactor = number();
@@ -223,6 +226,7 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     tf.opacity = points;
     transfer::validate(tf, options_.script);
     session.tf = tf;
+    tfChosenForDataset_ = true;
   } else if (name == "tf-color") {
     // [[HU, r, g, b], ...]: the colour points of the editor's swatches.
     std::vector<transfer::ColorPoint> points;
@@ -233,6 +237,7 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     tf.color = points;
     transfer::validate(tf, options_.script);
     session.tf = tf;
+    tfChosenForDataset_ = true;
   } else if (name == "save-tf") {
     transfer::saveTransferFunction(session.tf, text());
   }

@@ -13,9 +13,27 @@
 
 namespace octoray::viewer {
 
+namespace {
+
+// Whether the editor changed a transfer function's points (an edit makes it the reader's).
+bool samePoints(const transfer::TransferFunction& a, const transfer::TransferFunction& b) {
+  return std::equal(a.opacity.begin(), a.opacity.end(), b.opacity.begin(), b.opacity.end(),
+                    [](const auto& x, const auto& y) { return x.value == y.value && x.alpha == y.alpha; }) &&
+         std::equal(a.color.begin(), a.color.end(), b.color.begin(), b.color.end(),
+                    [](const auto& x, const auto& y) {
+                      return x.value == y.value && x.r == y.r && x.g == y.g && x.b == y.b;
+                    }) &&
+         std::equal(a.gradientOpacity.begin(), a.gradientOpacity.end(), b.gradientOpacity.begin(),
+                    b.gradientOpacity.end(),
+                    [](const auto& x, const auto& y) { return x.magnitude == y.magnitude && x.alpha == y.alpha; });
+}
+
+}  // namespace
+
 void App::drawTfEditor() {
   transfer::TransferFunction& tf = session.tf;
   if (!ImGui::TreeNodeEx("Transfer function", ImGuiTreeNodeFlags_DefaultOpen)) return;
+  const transfer::TransferFunction before = tf;
   const ImVec2 size(ImGui::GetContentRegionAvail().x, 140);
   const ImVec2 p0 = ImGui::GetCursorScreenPos();
   const ImVec2 p1(p0.x + size.x, p0.y + size.y);
@@ -137,6 +155,7 @@ void App::drawTfEditor() {
     ImGui::TreePop();
   }
   ImGui::TreePop();
+  if (!samePoints(before, tf)) tfChosenForDataset_ = true;
 }
 
 }  // namespace octoray::viewer

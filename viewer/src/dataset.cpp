@@ -139,7 +139,7 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
   hi = -lo;
   for (const std::size_t k : shown) {
     for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
-      if (std::isnan(values_[p])) continue;
+      if (!std::isfinite(values_[p])) continue;
       lo = std::min(lo, static_cast<double>(values_[p]));
       hi = std::max(hi, static_cast<double>(values_[p]));
     }
@@ -149,7 +149,7 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
   std::vector<int> counts(static_cast<std::size_t>(bins), 0);
   for (const std::size_t k : shown) {
     for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
-      if (std::isnan(values_[p])) continue;
+      if (!std::isfinite(values_[p])) continue;
       const int bin = std::clamp(static_cast<int>((values_[p] - lo) / (hi - lo) * bins), 0, bins - 1);
       ++counts[static_cast<std::size_t>(bin)];
     }
