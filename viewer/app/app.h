@@ -345,6 +345,9 @@ class App {
   void applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi);
   // The unit from what the source says and the lowest value seen (holdsHounsfieldUnits).
   void judgeValueUnit(double minimum);
+  // While a volume is imported or arrives: its slices so far judge the unit and give the
+  // automatic window (windows.cpp).
+  void lookAtPreview(const PreviewVolume& preview);
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

@@ -1,0 +1,173 @@
+// Windows and transfer functions: the table's presets, the automatic window/level, the
+// defaults for CT and for other values, and what the reader chose (app.h says when each
+// applies). The frame loop and onDatasetReady call in here; the controls call the choosers.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "app.h"
+#include "octoray/core/error.h"
+#include "octoray/transfer/defaults.h"
+#include "octoray/transfer/transfer_function_io.h"
+
+namespace octoray::viewer {
+
+namespace fs = std::filesystem;
+
+void App::computeHistogram() {
+  const volume::StoreReader* store = dataset_ ? dataset_->store() : nullptr;
+  if (!store) return;
+  const auto& layout = store->layout();
+  int level = 0;
+  while (level < layout.leafLevel()) {
+    const auto& d = layout.levelDims(level);
+    if (std::max({d[0], d[1], d[2]}) >= 96) break;
+    ++level;
+  }
+  histLo_ = store->node(0).minValue;
+  histHi_ = std::max(histLo_ + 1, static_cast<double>(store->node(0).maxValue));
+  histogram_.assign(256, 0);
+  const int B = layout.brickSize(), A = layout.border(), E = layout.storedEdge();
+  const int64_t first = layout.levelNodeOffset(level), last = layout.levelNodeOffset(level + 1);
+  for (int64_t id = first; id < last; ++id) {
+    try {
+      const volume::Brick b = store->readBrick(id);
+      const auto key = layout.nodeKey(id);
+      const auto& dims = layout.levelDims(level);
+      for (int z = 0; z < B; ++z) {
+        if (key.brick[2] * B + z >= dims[2]) break;
+        for (int y = 0; y < B; ++y) {
+          if (key.brick[1] * B + y >= dims[1]) break;
+          for (int x = 0; x < B; ++x) {
+            if (key.brick[0] * B + x >= dims[0]) break;
+            const std::size_t i = (static_cast<std::size_t>(z + A) * E + (y + A)) * E + (x + A);
+            const double v = store->physical(b.format == volume::SampleFormat::UInt16 ? b.u16[i] : b.f32[i]);
+            const int bin = std::clamp(static_cast<int>((v - histLo_) / (histHi_ - histLo_) * 256), 0, 255);
+            ++histogram_[static_cast<std::size_t>(bin)];
+          }
+        }
+      }
+    } catch (const Error& e) {
+      messages.push_back(e.what());
+      break;
+    }
+  }
+}
+
+// ---- model operations ----------------------------------------------------------------------
+
+void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
+  session.wl = {p.window, p.level};
+  session.wlPreset = p.name;
+}
+
+void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi) {
+  if (wlChosenForDataset_ || counts.empty()) return;
+  if (autoWlChosen_ || valueUnit_ != "HU") {
+    applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
+    wlUnit_ = valueUnit_;
+  } else if (wlUnit_ != "HU" && !wlPresets.empty()) {
+    applyWindowLevelPreset(wlPresets.front());  // a CT after a window for other values
+    wlUnit_ = "HU";
+  }
+}
+
+void App::applyDefaultTransferFunction() {
+  if (tfChosenForDataset_ || histogram_.empty()) return;
+  const transfer::DefaultMode mode = session.mode == gpu::RaycastMode::Mip   ? transfer::DefaultMode::Mip
+                                     : session.mode == gpu::RaycastMode::Iso ? transfer::DefaultMode::Iso
+                                                                             : transfer::DefaultMode::Dvr;
+  try {
+    session.tf = transfer::defaultTransferFunction(mode, valueUnit_ == "HU", histLo_, histHi_).tf;
+    session.preset = session.tf.name;
+  } catch (const Error& e) {
+    messages.push_back(e.what());
+  }
+}
+
+void App::modeChanged() {
+  if (session.preset.starts_with("default-")) applyDefaultTransferFunction();
+}
+
+void App::judgeValueUnit(double minimum) {
+  const VolumeInfo info = dataset_->info();
+  valueUnit_ = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, minimum) ? "HU" : "";
+}
+
+void App::windowLevelChosen(bool tablePreset) {
+  wlChosenForDataset_ = true;
+  autoWlChosen_ = false;
+  // Before the store is ready the unit may still be judged: "?" until onDatasetReady says.
+  wlUnit_ = tablePreset ? "HU" : slicer_ ? valueUnit_ : "?";
+}
+
+void App::applyAutoWindowLevel() {
+  autoWlChosen_ = true;
+  wlChosenForDataset_ = false;
+  session.wlPreset = "auto";
+  if (!histogram_.empty()) {
+    applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
+    wlUnit_ = valueUnit_;
+  } else {
+    autoWlPreviewFraction_ = 0;  // the preview's histogram gives it at the next frame
+  }
+}
+
+void App::applyWindowLevelKey(int key) {
+  if (key == 0) {
+    applyAutoWindowLevel();
+    return;
+  }
+  for (const auto& p : wlPresets) {
+    if (p.key == key) {
+      applyWindowLevelPreset(p);
+      windowLevelChosen(true);
+      return;
+    }
+  }
+}
+
+void App::selectTfPreset(const std::string& name) {
+  try {
+    transfer::TransferFunction tf;
+    const auto ours = transfer::presetNames();
+    if (std::find(ours.begin(), ours.end(), name) != ours.end()) {
+      tf = transfer::findPreset(name);
+    } else {
+      const fs::path slicerXml = fs::path(OCTORAY_SHARED_DIR) / "data/presets/slicer/presets.xml";
+      tf = transfer::selectTransferFunction(transfer::loadTransferFunctions(slicerXml), name,
+                                            slicerXml.string());
+    }
+    session.tf = tf;
+    session.preset = name;
+    tfChosenForDataset_ = true;
+  } catch (const Error& e) {
+    messages.push_back(e.what());
+  }
+}
+
+void App::lookAtPreview(const PreviewVolume& preview) {
+  // While a volume is imported or arrives, the slices in so far are looked at again each time
+  // their share doubles: their lowest value judges the unit where the source does not say it,
+  // and a volume without HU (or "auto") shows with the auto window/level of those slices,
+  // until the reader sets a window; the store's histogram gives the last one.
+  // The unit is judged while it is not known to be HU; the window while one is due.
+  const bool judging = valueUnit_ != "HU";
+  const bool windowDue = !wlChosenForDataset_ && (autoWlChosen_ || wlUnit_ != "HU");
+  if (judging || windowDue) {
+    const double fraction = preview.fraction();
+    if (fraction > 0 && fraction >= 2 * autoWlPreviewFraction_) {
+      double lo = 0, hi = 0;
+      const std::vector<int> counts = preview.histogram(256, lo, hi);
+      if (!counts.empty()) {
+        judgeValueUnit(lo);
+        applyAutomaticWindowLevel(counts, lo, hi);
+        autoWlPreviewFraction_ = fraction;
+      }
+    }
+  }
+}
+
+}  // namespace octoray::viewer
