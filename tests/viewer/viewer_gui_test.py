@@ -96,6 +96,30 @@ def rotation_about(axis, degrees):
     return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * (k @ k)
 
 
+def write_credentials(vw, secret):
+    """The viewer's credentials file for the test PACS (owner-only, as the viewer requires)."""
+    creds = vw.path("pacs.cred")
+    with open(creds, "w") as f:
+        f.write(f"basic octoray:{secret}\n")
+    os.chmod(creds, 0o600)
+    return creds
+
+
+def arrival_steps(vw, link, creds, first, fraction):
+    """Retrieve `first`'s series through the slow `link`; screenshots once `fraction` of its
+    slices are in (arriving.png) and once imported (arrived.png)."""
+    return [
+        {"type": "action", "name": "overlays", "value": False},
+        {"type": "action", "name": "pacs-server", "value": {"url": link.url + "/dicom-web", "credentials": creds}},
+        {"type": "action", "name": "pacs-retrieve",
+         "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
+        {"type": "wait-preview", "fraction": fraction, "timeout": 300},
+        {"type": "screenshot", "path": vw.path("arriving.png")},
+        {"type": "wait-converged", "timeout": 900},
+        {"type": "screenshot", "path": vw.path("arrived.png")},
+    ]
+
+
 @unittest.skipUnless(os.path.isdir(PHILIPS), f"skipped: {PHILIPS} is absent (real test data lives in ../shared)")
 class ViewerGui(unittest.TestCase):
     @classmethod
@@ -486,21 +510,8 @@ class ViewerGui(unittest.TestCase):
         try:
             server.upload(files)
             link = orthanc.SlowLink(server.url, 0.15)
-            creds = vw.path("pacs.cred")
-            with open(creds, "w") as f:
-                f.write(f"basic octoray:{secret}\n")
-            os.chmod(creds, 0o600)
-            steps = [
-                {"type": "action", "name": "overlays", "value": False},
-                {"type": "action", "name": "pacs-server", "value": {"url": link.url + "/dicom-web", "credentials": creds}},
-                {"type": "action", "name": "pacs-retrieve",
-                 "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
-                {"type": "wait-preview", "fraction": 0.3, "timeout": 300},
-                {"type": "screenshot", "path": vw.path("arriving.png")},
-                {"type": "wait-converged", "timeout": 900},
-                {"type": "screenshot", "path": vw.path("arrived.png")},
-            ]
-            vw.run(None, steps)
+            creds = write_credentials(vw, secret)
+            vw.run(None, arrival_steps(vw, link, creds, first, 0.3))
         finally:
             if link:
                 link.stop()
@@ -762,10 +773,7 @@ class ViewerGui(unittest.TestCase):
             files = sorted(os.path.join(HEAD, n) for n in os.listdir(HEAD) if n != "DIRFILE")
             server.upload(files)
             first = pydicom.dcmread(files[0], stop_before_pixels=True)
-            creds = vw.path("pacs.cred")
-            with open(creds, "w") as f:
-                f.write(f"basic octoray:{secret}\n")
-            os.chmod(creds, 0o600)
+            creds = write_credentials(vw, secret)
             steps = [
                 {"type": "action", "name": "pacs-panel", "value": True},
                 {"type": "action", "name": "pacs-server",
@@ -821,21 +829,8 @@ class ViewerGui(unittest.TestCase):
             server.upload(files)
             link = orthanc.SlowLink(server.url, 0.12)
             first = pydicom.dcmread(files[0], stop_before_pixels=True)
-            creds = vw.path("pacs.cred")
-            with open(creds, "w") as f:
-                f.write(f"basic octoray:{secret}\n")
-            os.chmod(creds, 0o600)
-            steps = [
-                {"type": "action", "name": "overlays", "value": False},
-                {"type": "action", "name": "pacs-server", "value": {"url": link.url + "/dicom-web", "credentials": creds}},
-                {"type": "action", "name": "pacs-retrieve",
-                 "value": {"study": str(first.StudyInstanceUID), "series": str(first.SeriesInstanceUID)}},
-                {"type": "wait-preview", "fraction": 0.1, "timeout": 300},
-                {"type": "screenshot", "path": vw.path("arriving.png")},
-                {"type": "wait-converged", "timeout": 900},
-                {"type": "screenshot", "path": vw.path("arrived.png")},
-            ]
-            vw.run(None, steps)
+            creds = write_credentials(vw, secret)
+            vw.run(None, arrival_steps(vw, link, creds, first, 0.1))
             fetched = link.instances
             # Closing the viewer while a series arrives stops the retrieval (not waiting for
             # the rest): the folder stays partial, for a rerun to complete.
