@@ -60,6 +60,11 @@ const gdcm::Tag kPlanePositionSeq(0x0020, 0x9113);
 const gdcm::Tag kPlaneOrientationSeq(0x0020, 0x9116);
 const gdcm::Tag kPixelMeasuresSeq(0x0028, 0x9110);
 const gdcm::Tag kPixelValueTransformSeq(0x0028, 0x9145);
+const gdcm::Tag kWindowCenter(0x0028, 0x1050);
+const gdcm::Tag kWindowWidth(0x0028, 0x1051);
+const gdcm::Tag kWindowExplanation(0x0028, 0x1055);
+const gdcm::Tag kVoiLutFunction(0x0028, 0x1056);
+const gdcm::Tag kFrameVoiLutSeq(0x0028, 0x9132);
 const gdcm::Tag kFrameTypeSeq(0x0018, 0x9226);  // CT Image Frame Type Sequence
 const gdcm::Tag kFrameType(0x0008, 0x9007);
 const gdcm::Tag kDirectoryRecords(0x0004, 0x1220);
@@ -78,6 +83,8 @@ struct FileHeader {
   std::optional<std::vector<double>> orientation, pixelSpacing;
   std::vector<FrameRef> frames;
   bool multiFrame = false;
+  std::vector<SourceWindow> windows;  // of the file, or of an enhanced object's first frame
+  std::string windowProblem;          // why a window it names was left out, or ""
 };
 
 bool isSecondaryCapture(const std::string& sopClass) {
@@ -121,6 +128,49 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
   }
 }
 
+// The display windows `ds` names, in order (PS3.3 C.11.2.1.2). They are shown as the linear
+// map from center - width / 2 to center + width / 2 (the standard's LINEAR_EXACT; its LINEAR
+// differs by half a unit). A pair that is not two finite numbers, or whose width is below 1
+// (C.11.2.1.2.1), is left out, and `problem` says so; so does a SIGMOID function, whose
+// windows are still shown, linear. A window named twice is kept once.
+std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& problem) {
+  const std::string centerText = stringValue(ds, kWindowCenter), widthText = stringValue(ds, kWindowWidth);
+  if (centerText.empty() && widthText.empty()) return {};
+  const auto centers = numberValues(ds, kWindowCenter);
+  const auto widths = numberValues(ds, kWindowWidth);
+  if (!centers || !widths) {
+    problem = fmt::format("WindowCenter '{}' / WindowWidth '{}' are not finite numbers: no window "
+                          "from the file",
+                          centerText, widthText);
+    return {};
+  }
+  if (centers->size() != widths->size()) {
+    problem = fmt::format("WindowCenter has {} values and WindowWidth {}: the first {} pairs are used",
+                          centers->size(), widths->size(), std::min(centers->size(), widths->size()));
+  }
+  const std::vector<std::string> explanations = stringValues(ds, kWindowExplanation);
+  std::vector<SourceWindow> windows;
+  for (std::size_t i = 0; i < std::min(centers->size(), widths->size()); ++i) {
+    if ((*widths)[i] < 1) {
+      problem = fmt::format("WindowWidth {} is below 1: that window is left out", (*widths)[i]);
+      continue;
+    }
+    SourceWindow w;
+    w.center = (*centers)[i];
+    w.width = (*widths)[i];
+    if (i < explanations.size()) w.explanation = explanations[i];
+    // Philips writes its one window twice ("40\\40", "80\\80"): a repeat is one window.
+    const bool repeat = std::any_of(windows.begin(), windows.end(), [&](const SourceWindow& o) {
+      return o.center == w.center && o.width == w.width && o.explanation == w.explanation;
+    });
+    if (!repeat) windows.push_back(std::move(w));
+  }
+  if (stringValue(ds, kVoiLutFunction) == "SIGMOID" && !windows.empty()) {
+    problem = "VOILUTFunction SIGMOID: its windows are shown as linear ones";
+  }
+  return windows;
+}
+
 void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) {
   const auto shared = detail::firstItem(ds, kSharedGroups);
   const auto perFrame = detail::sequenceItems(ds, kPerFrameGroups);
@@ -151,6 +201,9 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
       if (auto frameType = groupMacro(mine, shared, kFrameTypeSeq)) {
         auto type = stringValues(*frameType, kFrameType);
         if (!type.empty()) h.imageType = type;
+      }
+      if (auto voi = groupMacro(mine, shared, kFrameVoiLutSeq)) {
+        h.windows = readWindows(*voi, h.windowProblem);
       }
     }
     if (auto transform = groupMacro(mine, shared, kPixelValueTransformSeq)) {
@@ -273,6 +326,7 @@ FileHeader readHeader(const std::string& path) {
   } else {
     h.orientation = numberValues(ds, kOrientation);
     h.pixelSpacing = numberValues(ds, kPixelSpacing);
+    h.windows = readWindows(ds, h.windowProblem);
     const auto position = numberValues(ds, kPosition);
     const double slope = rescaleValue(ds, kRescaleSlope, 1.0, path, "RescaleSlope");
     const double intercept = rescaleValue(ds, kRescaleIntercept, 0.0, path, "RescaleIntercept");
@@ -530,6 +584,14 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
 
   std::map<std::string, DicomSeries> groups;
   std::vector<std::string> order;
+  // The windows each series' frames name, by what they name: the most frames' choice wins, the
+  // first file's on a tie (a scanner may write each slice's own, or none on some slices).
+  struct WindowChoice {
+    std::size_t frames = 0;
+    std::size_t firstFile = 0;
+    std::vector<SourceWindow> windows;
+  };
+  std::map<std::string, std::map<std::string, WindowChoice>> windowChoices;
   for (std::size_t i = 0; i < files.size(); ++i) {
     if (!headers[i]) {
       scan.skipped.push_back({files[i], failures[i]});
@@ -564,7 +626,30 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
       }
     }
     s.multiFrame = s.multiFrame || h.multiFrame;
+    std::string named;
+    for (const SourceWindow& w : h.windows) {
+      named += fmt::format("{}|{}|{}\\", w.center, w.width, w.explanation);
+    }
+    auto [choice, first] = windowChoices[key].try_emplace(named);
+    if (first) {
+      choice->second.firstFile = i;
+      choice->second.windows = h.windows;
+    }
+    choice->second.frames += h.frames.size();
+    if (!h.windowProblem.empty() && s.windowWarning.empty()) {
+      s.windowWarning = h.path + ": " + h.windowProblem;
+    }
     for (auto& frame : h.frames) s.frames.push_back(std::move(frame));
+  }
+  for (auto& [key, choices] : windowChoices) {
+    const WindowChoice* best = nullptr;
+    for (const auto& [named, choice] : choices) {
+      if (!best || choice.frames > best->frames ||
+          (choice.frames == best->frames && choice.firstFile < best->firstFile)) {
+        best = &choice;
+      }
+    }
+    if (best) groups[key].windows = best->windows;
   }
 
   // Number the parts of a UID that had to be split, so the table tells them apart.

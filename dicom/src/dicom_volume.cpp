@@ -226,9 +226,11 @@ class DicomVolumeSource final : public VolumeSource {
     info.description = series.description;
     info.seriesUid = series.seriesUid;
     info.unit = series.modality == "CT" ? "HU" : "";
+    info.windows = series.windows;
     info.tiltDegrees = geometry_.tiltDegrees;
     info.resampled = !geometry_.uniform && geometry_.slices.size() > 1;
     info.warnings = geometry_.warnings;
+    if (!series.windowWarning.empty()) info.warnings.push_back(series.windowWarning);
     // Interpolated values are rounded to whole units, so integer data stays integer.
     info.integerValues = std::all_of(geometry_.slices.begin(), geometry_.slices.end(),
                                      [](const FrameRef& f) {

@@ -587,6 +587,35 @@ TEST_P(PhilipsAxial, EveryOriginalSliceLandsOnTheGridWithItsHounsfieldUnits) {
                            check.maxValueError, volume.info.tiltDegrees);
 }
 
+// The display window the volume keeps is the files' own: every file of these series names one
+// WindowCenter / WindowWidth, written twice (pydicom reads [40, 40] / [80, 80]); read here with
+// gdcm::Attribute, file by file, and kept once.
+TEST_P(PhilipsAxial, KeepsTheWindowEveryFileNames) {
+  const AxialCase& c = GetParam();
+  const LoadedVolume& volume = PhilipsData::volume(c.folder);
+  std::set<std::pair<double, double>> named;
+  for (const fs::path& file : imageFiles(test::philipsDir() / c.folder)) {
+    gdcm::Reader reader;
+    reader.SetFileName(file.c_str());
+    ASSERT_TRUE(reader.ReadUpToTag(gdcm::Tag(0x7fe0, 0x0010), std::set<gdcm::Tag>{})) << file;
+    const gdcm::DataSet& ds = reader.GetFile().GetDataSet();
+    gdcm::Attribute<0x0028, 0x1050> center;
+    center.SetFromDataSet(ds);
+    gdcm::Attribute<0x0028, 0x1051> width;
+    width.SetFromDataSet(ds);
+    ASSERT_EQ(center.GetNumberOfValues(), 2u) << file;
+    ASSERT_EQ(width.GetNumberOfValues(), 2u) << file;
+    for (unsigned i = 0; i < 2; ++i) named.insert({center[i], width[i]});
+  }
+  ASSERT_EQ(named.size(), 1u);
+  ASSERT_EQ(volume.info.windows.size(), 1u);
+  EXPECT_EQ(volume.info.windows[0].center, named.begin()->first);
+  EXPECT_EQ(volume.info.windows[0].width, named.begin()->second);
+  EXPECT_EQ(volume.info.windows[0].center, 40);
+  EXPECT_EQ(volume.info.windows[0].width, 80);
+  EXPECT_EQ(volume.info.windows[0].explanation, "");
+}
+
 // The sign of tiltDegrees: resolveStack signs the angle between the slice step and the
 // normal by the step's component along the column direction (IOP[3..5]). On these Philips
 // files that equals GantryDetectorTilt (0018,1120): −18.5 for S21610/S2010 and +16.5 for

@@ -1,4 +1,6 @@
 // How scanDicom splits and classifies what shares one SeriesInstanceUID.
+#include <gdcmDicts.h>
+#include <gdcmGlobal.h>
 #include <gdcmReader.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
@@ -6,6 +8,7 @@
 #include <fstream>
 
 #include "octoray/dicom/dicom_series.h"
+#include "octoray/dicom/dicom_volume.h"
 #include "octoray/dicom/synthetic_series.h"
 #include "test_paths.h"
 
@@ -20,7 +23,9 @@ void rewrite(const std::filesystem::path& path, const std::vector<std::pair<gdcm
   gdcm::DataSet& ds = reader.GetFile().GetDataSet();
   for (const auto& [tag, text] : values) {
     gdcm::DataElement de(tag);
-    de.SetVR(ds.GetDataElement(tag).GetVR());
+    // An element the file lacks gets the VR of the dictionary.
+    de.SetVR(ds.FindDataElement(tag) ? ds.GetDataElement(tag).GetVR()
+                                     : gdcm::Global::GetInstance().GetDicts().GetDictEntry(tag).GetVR());
     std::string padded = text;
     if (padded.size() % 2) padded += (tag == gdcm::Tag(0x0020, 0x000e) ? '\0' : ' ');
     de.SetByteValue(padded.data(), static_cast<uint32_t>(padded.size()));
@@ -81,6 +86,85 @@ TEST(SeriesGrouping, HiddenFilesAreIgnored) {
   EXPECT_TRUE(scan.skipped.empty()) << scan.skipped.front().path;
   ASSERT_EQ(scan.series.size(), 1u);
   EXPECT_EQ(scan.series[0].frames.size(), 5u);
+}
+
+const gdcm::Tag kCenter(0x0028, 0x1050), kWidth(0x0028, 0x1051), kExplanation(0x0028, 0x1055),
+    kFunction(0x0028, 0x1056);
+
+// What each written file names as its display windows, and the volume opened from them.
+struct WindowedSeries {
+  std::filesystem::path dir;
+  VolumeInfo info;
+};
+WindowedSeries writeWithWindows(const std::string& name,
+                                const std::vector<std::vector<std::pair<gdcm::Tag, std::string>>>& perFile) {
+  const auto dir = test::freshTempDir(name);
+  SyntheticSeriesSpec spec;
+  spec.sliceCount = static_cast<int>(perFile.size());
+  const SyntheticSeries written = writeSyntheticSeries(dir, spec);
+  EXPECT_EQ(written.images.size(), perFile.size());
+  for (std::size_t i = 0; i < perFile.size() && i < written.images.size(); ++i) {
+    rewrite(written.images[i].path, perFile[i]);
+  }
+  const DicomScan scan = scanDicom(dir);
+  EXPECT_EQ(scan.series.size(), 1u);
+  if (scan.series.empty()) return {};
+  return {dir, openDicomSeries(scan.series[0])->info()};
+}
+
+// The windows a series names for display (WindowCenter / WindowWidth, in HU after the rescale)
+// are what most of its slices name, in their order with their explanations; the volume keeps
+// them for the viewer and the store.
+TEST(SeriesWindows, TheWindowsMostSlicesNameInTheirOrder) {
+  const std::vector<std::pair<gdcm::Tag, std::string>> two = {
+      {kCenter, "40\\-600"}, {kWidth, "400\\1500"}, {kExplanation, "SOFT TISSUE\\LUNG"}};
+  const std::vector<std::pair<gdcm::Tag, std::string>> other = {{kCenter, "50"}, {kWidth, "350"}};
+  const WindowedSeries w = writeWithWindows("windows", {other, two, two, two, other});
+  ASSERT_EQ(w.info.windows.size(), 2u);
+  EXPECT_EQ(w.info.windows[0].center, 40);
+  EXPECT_EQ(w.info.windows[0].width, 400);
+  EXPECT_EQ(w.info.windows[0].explanation, "SOFT TISSUE");
+  EXPECT_EQ(w.info.windows[1].center, -600);
+  EXPECT_EQ(w.info.windows[1].width, 1500);
+  EXPECT_EQ(w.info.windows[1].explanation, "LUNG");
+  EXPECT_TRUE(w.info.warnings.empty()) << w.info.warnings.front();
+
+  // A window named twice (Philips' "40\\40" / "80\\80") is one; on a tie the first file's wins.
+  const std::vector<std::pair<gdcm::Tag, std::string>> twice = {{kCenter, "40\\40"}, {kWidth, "80\\80"}};
+  const WindowedSeries tie = writeWithWindows("windows-tie", {twice, other, twice, other});
+  ASSERT_EQ(tie.info.windows.size(), 1u);
+  EXPECT_EQ(tie.info.windows[0].center, 40);
+  EXPECT_EQ(tie.info.windows[0].width, 80);
+  EXPECT_EQ(tie.info.windows[0].explanation, "");
+}
+
+// A window that is not a pair of finite numbers, or narrower than 1 (PS3.3 C.11.2.1.2.1), is
+// left out with a warning naming the file; the series is read as before. A SIGMOID function is
+// said; its windows are shown as linear ones.
+TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
+  struct Case {
+    const char* name;
+    std::vector<std::pair<gdcm::Tag, std::string>> values;
+    std::size_t windowsKept;
+    const char* warning;
+  };
+  const Case cases[] = {
+      {"narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}}, 1, "WindowWidth 0.5 is below 1"},
+      {"junk", {{kCenter, "forty"}, {kWidth, "80"}}, 0,
+       "WindowCenter 'forty' / WindowWidth '80' are not finite numbers"},
+      {"uneven", {{kCenter, "40\\300"}, {kWidth, "80"}}, 1, "WindowCenter has 2 values and WindowWidth 1"},
+      {"sigmoid", {{kCenter, "40"}, {kWidth, "80"}, {kFunction, "SIGMOID"}}, 1, "SIGMOID"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const WindowedSeries w = writeWithWindows(std::string("windows-") + c.name, {c.values, c.values, c.values});
+    EXPECT_EQ(w.info.windows.size(), c.windowsKept);
+    for (const SourceWindow& kept : w.info.windows) EXPECT_GE(kept.width, 1);
+    ASSERT_EQ(w.info.warnings.size(), 1u);
+    EXPECT_NE(w.info.warnings[0].find(c.warning), std::string::npos) << w.info.warnings[0];
+    EXPECT_EQ(w.info.warnings[0].rfind(w.dir.string() + "/", 0), 0u) << w.info.warnings[0];  // names the file
+    EXPECT_EQ(w.info.dims[2], 3);
+  }
 }
 
 }  // namespace

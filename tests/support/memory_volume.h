@@ -35,6 +35,8 @@ class MemoryVolume final : public VolumeSource {
   }
   // Another geometry (the default is a sheared grid of 0.5 x 0.5 x 2 mm).
   void setPatientFromIndex(const Mat4& m) { info_.patientFromIndex = m; }
+  // The display windows the source names (DICOM's WindowCenter / WindowWidth).
+  void setWindows(std::vector<SourceWindow> windows) { info_.windows = std::move(windows); }
   int slabsRead = 0;
 
  private:

@@ -395,6 +395,24 @@ TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
 
 // Auto window/level: the 0.1st and 99.9th percentiles of the histogram, interpolated inside
 // their bins (100 bins of width 10 over [0, 1000)).
+// The windows a volume's file names become presets "file", "file 2", ... in its order, the
+// window its width and the level its center, the explanation in the source; none, none.
+TEST(ViewerPresets, TheFilesWindowsArePresetsInItsOrder) {
+  EXPECT_TRUE(fileWindowLevelPresets({}).empty());
+  const auto presets = fileWindowLevelPresets({{40, 80, ""}, {-600, 1500, "LUNG"}, {300, 1500, "BONE"}});
+  ASSERT_EQ(presets.size(), 3u);
+  EXPECT_EQ(presets[0].name, "file");
+  EXPECT_EQ(presets[1].name, "file 2");
+  EXPECT_EQ(presets[2].name, "file 3");
+  EXPECT_EQ((presets[0].window), 80);
+  EXPECT_EQ((presets[0].level), 40);
+  EXPECT_EQ((presets[1].window), 1500);
+  EXPECT_EQ((presets[1].level), -600);
+  EXPECT_EQ(presets[0].key, 0);
+  EXPECT_EQ(presets[0].source, "the file's WindowCenter / WindowWidth");
+  EXPECT_EQ(presets[1].source, "the file's WindowCenter / WindowWidth: LUNG");
+}
+
 TEST(ViewerPresets, AutoWindowLevelSpansTheMiddleOfTheValues) {
   // 10,000 values spread evenly over bins 20-69 (200-700), and 10 outliers in each of the
   // first and the last bin: 0.1 % of the 10,020 samples is 10.02, so the percentiles leave the

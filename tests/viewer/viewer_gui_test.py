@@ -400,8 +400,9 @@ class ViewerGui(unittest.TestCase):
         self.assertAlmostEqual(wl["level"], 40 + 50 * 80 / 200, places=6)
         self.assert_mpr_matches(self.head, load_png(vw.path("after.png")), state, "axial", wl=wl)
 
-    # A volume without Hounsfield units (pydicom's MR slice, values 127-2145): CT's windows
-    # would show it white. It opens with the auto window/level, the 0.1st to 99.9th percentile
+    # A volume without Hounsfield units whose file names no window (pydicom's MR slice, values
+    # 127-2145, its WindowCenter / WindowWidth removed): CT's windows would show it white. It
+    # opens with the auto window/level, the 0.1st to 99.9th percentile
     # of its values, the grey-ramp transfer function of octoray-render's default for such values,
     # and reports no unit; key 1 gives a CT preset, key 0 the auto one again, which stays chosen
     # for the next volume. A CT opened after the automatic auto gets the CT defaults back; a
@@ -414,7 +415,9 @@ class ViewerGui(unittest.TestCase):
         vw = self.viewer("mr")
         folder = vw.path("mr-series")
         os.makedirs(folder, exist_ok=True)
-        shutil.copy(mr, folder)
+        ds = pydicom.dcmread(mr)
+        del ds.WindowCenter, ds.WindowWidth
+        ds.save_as(os.path.join(folder, "MR_small.dcm"))
         steps = [
             {"type": "action", "name": "overlays", "value": False},
             {"type": "wait-converged"},
@@ -434,6 +437,7 @@ class ViewerGui(unittest.TestCase):
         state = load_json(vw.path("opened.png.json"))
         self.assertEqual(state["dataset"]["state"], "ready")
         self.assertEqual(state["dataset"]["unit"], "")
+        self.assertEqual(state["dataset"]["fileWindows"], [])
         self.assertEqual(state["session"]["preset"], "default-dvr")
         wl = state["session"]["windowLevel"]
         self.assertEqual(wl["preset"], "auto")
@@ -487,6 +491,91 @@ class ViewerGui(unittest.TestCase):
                          (80, 40, "brain"))
         self.assertEqual(ct["preset"], "bone")
 
+    # A series whose files name a window opens with it, as Horos, Weasis, OHIF and Slicer open
+    # one: pydicom's MR slice (WindowCenter 600, WindowWidth 1600) and the 1 mm Philips head
+    # (40 / 80, written twice) with theirs, read here by pydicom; the state lists them. "auto",
+    # chosen, replaces them while it stays chosen; a window chosen for one volume (here "file 2"
+    # of a series naming two, octoray's synthetic CT rewritten) does not replace the next
+    # volume's own; a CT that names none, opened after a volume's own window, gets the table's
+    # first preset (brain) instead of that window.
+    def test_volume_opens_with_the_window_its_file_names(self):
+        import pydicom
+        mr = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", "MR_small.dcm")
+        if not os.path.isfile(mr):
+            self.skipTest(f"{mr} is absent (Debian's python3-pydicom installs it)")
+        vw = self.viewer("file-window")
+        folder = vw.path("mr-series")
+        os.makedirs(folder, exist_ok=True)
+        shutil.copy(mr, folder)
+        named = pydicom.dcmread(mr, stop_before_pixels=True)
+        two = vw.path("two-windows")
+        p = run([os.path.join(BIN, "octoray-sample-series"), two, "--size", "64x64x12", "--seed", "7"])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        for f in os.listdir(two):
+            ds = pydicom.dcmread(os.path.join(two, f))
+            ds.WindowCenter, ds.WindowWidth = [40, -600], [400, 1500]
+            ds.WindowCenterWidthExplanation = ["SOFT TISSUE", "LUNG"]
+            ds.save_as(os.path.join(two, f))
+        nifti = vw.path("head-5mm.nii.gz")
+        p = run([os.path.join(BIN, "octoray-import"), "--export", nifti, os.path.join(PHILIPS, "S21570/S2010")])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        head_named = pydicom.dcmread(os.path.join(HEAD, sorted(n for n in os.listdir(HEAD) if n != "DIRFILE")[0]),
+                                     stop_before_pixels=True)
+        vw.run(folder, [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("mr.png")},
+            {"type": "key", "key": "0"},
+            {"type": "dump-state", "path": vw.path("mr-auto.json")},
+            {"type": "action", "name": "open", "value": self.head_store},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("head.json")},
+            {"type": "action", "name": "open", "value": two},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("two.json")},
+            {"type": "action", "name": "wl-preset", "value": "file 2"},
+            {"type": "screenshot", "path": vw.path("two-lung.png")},
+            {"type": "action", "name": "open", "value": self.head_store},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("head-own.png")},
+            {"type": "action", "name": "open", "value": nifti},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("nifti.json")},
+        ])
+        state = load_json(vw.path("mr.png.json"))
+        self.assertEqual(state["dataset"]["unit"], "")
+        wl = state["session"]["windowLevel"]
+        self.assertEqual((wl["window"], wl["level"], wl["preset"]),
+                         (float(named.WindowWidth), float(named.WindowCenter), "file"))
+        self.assertEqual([(w["name"], w["window"], w["level"]) for w in state["dataset"]["fileWindows"]],
+                         [("file", float(named.WindowWidth), float(named.WindowCenter))])
+        self.assert_mpr_matches(DicomVolume(folder), load_png(vw.path("mr.png")), state, "axial", label="MR: ")
+        self.assertEqual(load_json(vw.path("mr-auto.json"))["session"]["windowLevel"]["preset"], "auto")
+        # "auto", chosen, stays for the head and the next series; the head's own window is listed.
+        head = load_json(vw.path("head.json"))
+        self.assertEqual(head["session"]["windowLevel"]["preset"], "auto")
+        self.assertEqual([(w["window"], w["level"]) for w in head["dataset"]["fileWindows"]],
+                         [(float(head_named.WindowWidth[0]), float(head_named.WindowCenter[0]))])
+        # Two windows: both listed with their explanations, "file 2" chosen by name.
+        state = load_json(vw.path("two.json"))
+        self.assertEqual([(w["name"], w["window"], w["level"], w["source"]) for w in state["dataset"]["fileWindows"]],
+                         [("file", 400, 40, "the file's WindowCenter / WindowWidth: SOFT TISSUE"),
+                          ("file 2", 1500, -600, "the file's WindowCenter / WindowWidth: LUNG")])
+        self.assertEqual(state["session"]["windowLevel"]["preset"], "auto")
+        lung = load_json(vw.path("two-lung.png.json"))
+        self.assertEqual(lung["session"]["windowLevel"], {"window": 1500, "level": -600, "preset": "file 2"})
+        # The head opened next, with "auto" no longer chosen: its own window, as read by pydicom.
+        state = load_json(vw.path("head-own.png.json"))
+        wl = state["session"]["windowLevel"]
+        self.assertEqual((wl["window"], wl["level"], wl["preset"]),
+                         (float(head_named.WindowWidth[0]), float(head_named.WindowCenter[0]), "file"))
+        self.assert_mpr_matches(self.head, load_png(vw.path("head-own.png")), state, "axial", label="head: ")
+        # The NIfTI CT after it names no window: the table's first preset, not the head's window.
+        state = load_json(vw.path("nifti.json"))
+        self.assertEqual(state["dataset"]["fileWindows"], [])
+        self.assertEqual(state["dataset"]["unit"], "HU")
+        self.assertEqual(state["session"]["windowLevel"]["preset"], "brain")
+
     # The same while a series without HU arrives from a PACS (octoray's synthetic series
     # relabelled MR): the slices in so far show with the auto window/level of those slices,
     # never a CT window; once imported, the store's values give it.
@@ -501,6 +590,7 @@ class ViewerGui(unittest.TestCase):
             ds = pydicom.dcmread(f)
             ds.Modality = "MR"
             ds.SOPClassUID = ds.file_meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.4"  # MR Image Storage
+            del ds.WindowCenter, ds.WindowWidth  # an MR series that names no window of its own
             ds.save_as(f)
         first = pydicom.dcmread(files[0], stop_before_pixels=True)
         oracle = DicomVolume(series)

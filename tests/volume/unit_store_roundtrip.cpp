@@ -151,6 +151,7 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
     options.brickSize = 16;
     options.format = BuildOptions::Format::Float32;
     options.sourceContentHash = "0123456789abcdef";
+    if (integer) volume.setWindows({{40, 80, ""}, {-600, 1500, "LUNG"}});
     const std::string path = (dir / (integer ? "hu.octoray" : "plain.octoray")).string();
     buildStore(volume, path, options);
     const StoreReader store(path);
@@ -159,6 +160,16 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
     EXPECT_EQ(store.source().contentHash, "0123456789abcdef");
     ASSERT_TRUE(store.source().integerValues.has_value());
     EXPECT_EQ(*store.source().integerValues, integer);
+    // The display windows the source names, in order; none where it names none.
+    ASSERT_EQ(store.source().windows.size(), integer ? 2u : 0u);
+    if (integer) {
+      EXPECT_EQ(store.source().windows[0].center, 40);
+      EXPECT_EQ(store.source().windows[0].width, 80);
+      EXPECT_EQ(store.source().windows[0].explanation, "");
+      EXPECT_EQ(store.source().windows[1].center, -600);
+      EXPECT_EQ(store.source().windows[1].width, 1500);
+      EXPECT_EQ(store.source().windows[1].explanation, "LUNG");
+    }
   }
   for (const char* provenance :
        {"not json", "[1, 2]", "{}", R"({"source": 5})", R"({"source": null})",
@@ -169,7 +180,18 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
     EXPECT_EQ(source.modality, "") << provenance;
     EXPECT_EQ(source.contentHash, "") << provenance;
     EXPECT_FALSE(source.integerValues.has_value()) << provenance;
+    EXPECT_TRUE(source.windows.empty()) << provenance;
   }
+  // A window that is not a finite center with a positive width is left out, the others kept.
+  const StoreSource windows = parseStoreSource(
+      R"({"source": {"windows": [{"center": 40, "width": 80}, {"center": "40", "width": 80}, 7,
+          {"center": 1, "width": 0}, {"center": 1, "width": -5}, {"center": null, "width": 3},
+          {"center": -600, "width": 1500, "explanation": ["LUNG"]}]}})");
+  ASSERT_EQ(windows.windows.size(), 2u);
+  EXPECT_EQ(windows.windows[0].center, 40);
+  EXPECT_EQ(windows.windows[1].width, 1500);
+  EXPECT_EQ(windows.windows[1].explanation, "");
+  EXPECT_TRUE(parseStoreSource(R"({"source": {"windows": {"center": 40, "width": 80}}})").windows.empty());
   const StoreSource ct = parseStoreSource(
       R"({"source": {"modality": "CT", "unit": "HU", "seriesUid": "1.2.3", "integerValues": true}})");
   EXPECT_EQ(ct.modality, "CT");

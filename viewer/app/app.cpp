@@ -196,14 +196,12 @@ App::App(const AppOptions& options) : options_(options) {
     session.mode = parseModeName(options_.mode);
     modeChanged();
   }
-  if (options_.wlPreset == "auto") {
-    applyAutoWindowLevel();
-  } else if (!options_.wlPreset.empty()) {
-    const auto it = std::find_if(wlPresets.begin(), wlPresets.end(),
-                                 [&](const auto& p) { return p.name == options_.wlPreset; });
-    if (it == wlPresets.end()) throw Error("", fmt::format("--wl \"{}\": no such window/level preset", options_.wlPreset));
-    applyWindowLevelPreset(*it);
-    windowLevelChosen(true);
+  if (!options_.wlPreset.empty()) {
+    try {
+      chooseWindowLevelPreset(options_.wlPreset);
+    } catch (const Error& e) {
+      throw Error("", fmt::format("--wl: {}", e.what()));
+    }
   }
   if (!options_.camera.empty()) {
     const gpu::Camera c = gpu::loadCamera(options_.camera);
@@ -250,6 +248,8 @@ void App::resetForDataset(const std::string& source) {
   valueUnit_.clear();
   sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
   wlChosenForDataset_ = tfChosenForDataset_ = false;
+  fileWlPresets_.clear();
+  fileWindowsRead_ = false;
   autoWlPreviewFraction_ = 0;
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
@@ -562,6 +562,7 @@ void App::frame() {
   const bool interacting = controller_.dragging3d() || (controller_.dragging() && interactionFrames_ > 0) ||
                            interactionFrames_ > 0;
 
+  lookAtFileWindows();
   if (dataset_ && dataset_->state() == Dataset::State::Ready && !view3d_ && !slicer_ && !datasetFailedOpen_) {
     onDatasetReady();
     if (!view3d_) datasetFailedOpen_ = true;

@@ -209,6 +209,13 @@ class App {
   std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
   void applyWindowLevelKey(int key);  // 1-9: the table's presets; 0: auto
+  // The reader chose a window by name (--wl, a script's wl-preset): "auto", "file" (the
+  // volume's own; as without --wl where it names none), "file 2", ..., or the table's. Throws
+  // octoray::Error for a name that is none of them.
+  void chooseWindowLevelPreset(const std::string& name);
+  // The windows the open volume's file names, as presets (fileWindowLevelPresets); empty before
+  // its headers are read and where it names none.
+  const std::vector<WindowLevelPreset>& fileWindowPresets() const { return fileWlPresets_; }
   // The window/level "auto" (presets.h), chosen by the reader: from the store's histogram, or
   // while the volume is imported from its preview's and again once the store is ready. It stays
   // chosen for the volumes opened next, until the reader picks another window.
@@ -324,16 +331,19 @@ class App {
   double frameMs_ = 0;
   bool sessionLoaded_ = false;       // the session being opened brings its own camera/crosshair
   std::string valueUnit_;
-  // Automatic windows and transfer function. A volume without HU opens with the auto
-  // window/level and the grey-ramp transfer function of transfer/defaults.h (CT windows and
-  // presets mean nothing for its values), unless a session, the command line or the reader
-  // chose one for it; a CT opened after it gets the CT defaults back.
+  // Automatic windows and transfer function. A volume whose file names a window opens with
+  // it; else a volume without HU opens with the auto window/level, and a CT with the table's
+  // first preset. A volume without HU gets the grey-ramp transfer function of
+  // transfer/defaults.h (CT presets mean nothing for its values). None of these replaces what
+  // a session, the command line or the reader chose for the volume; a CT opened after another
+  // volume's automatic window gets the CT defaults back.
   bool wlChosenForDataset_ = false;  // the reader set a window for this volume
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
   // The unit of the values the current window was set for ("HU": a CT window; "?": set before
-  // the volume's unit was known). A CT opened after a window set for other values gets the
-  // table's first preset.
+  // the volume's unit was known; "file": a volume's own window, applied for it). A CT opened
+  // after a window set for other values, or after another volume's own, gets the table's first
+  // preset.
   std::string wlUnit_ = "HU";
   double autoWlPreviewFraction_ = 0; // the preview's fraction when auto was last taken from it
   // transfer/defaults.h's transfer function for the mode and the volume (CT or not), unless the
@@ -348,6 +358,11 @@ class App {
   // While a volume is imported or arrives: its slices so far judge the unit and give the
   // automatic window (windows.cpp).
   void lookAtPreview(const PreviewVolume& preview);
+  // Once the volume's headers are read: the windows its file names, the first applied where
+  // the reader chose none (windows.cpp).
+  void lookAtFileWindows();
+  std::vector<WindowLevelPreset> fileWlPresets_;
+  bool fileWindowsRead_ = false;     // the dataset's windows were looked at (it names some)
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

@@ -29,7 +29,7 @@ int main(int argc, char** argv) {
   cli.add_option("data", o.data, "an octree store, a DICOM folder/DICOMDIR/file, NRRD, MHD, NIfTI or TIFF");
   cli.add_option("--layout", o.layout, "four-up (default), one-up or 1+3");
   cli.add_option("--preset", o.preset, "3D transfer-function preset (ours or Slicer's)");
-  cli.add_option("--wl", o.wlPreset, "window/level preset (brain, subdural, stroke, bone, lung, ...; auto: from the volume's values)");
+  cli.add_option("--wl", o.wlPreset, "window/level preset (brain, subdural, stroke, bone, lung, ...; auto: from the volume's values; file, file 2, ...: the windows the volume's file names, the first being the default where it names one)");
   cli.add_option("--mode", o.mode, "3D mode: dvr, iso or mip");
   cli.add_option("--camera", o.camera, "3D camera JSON (octoray-render --save-camera)");
   cli.add_option("--session", o.session, "a saved viewing session (JSON)");

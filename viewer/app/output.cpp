@@ -66,6 +66,11 @@ nlohmann::json App::stateJson() {
                     {"status", dataset_->status()},
                     {"unit", valueUnit_},
                     {"previewFraction", previewFraction()}};
+    nlohmann::json windows = nlohmann::json::array();
+    for (const WindowLevelPreset& p : fileWlPresets_) {
+      windows.push_back({{"name", p.name}, {"window", p.window}, {"level", p.level}, {"source", p.source}});
+    }
+    j["dataset"]["fileWindows"] = windows;
   }
   nlohmann::json views = nlohmann::json::object();
   for (int v = 0; v < kViewCount; ++v) {

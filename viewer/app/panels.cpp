@@ -144,6 +144,33 @@ void App::drawPanels() {
       session.wlPreset.clear();
       windowLevelChosen();
     }
+    // The windows the volume's file names (its default first), above the table's CT presets.
+    if (!fileWlPresets_.empty() &&
+        ImGui::BeginTable("file-wl", 3, ImGuiTableFlags_BordersInnerH | ImGuiTableFlags_SizingStretchProp)) {
+      ImGui::TableSetupColumn("from the file");
+      ImGui::TableSetupColumn("W");
+      ImGui::TableSetupColumn("L");
+      ImGui::TableHeadersRow();
+      for (std::size_t i = 0; i < fileWlPresets_.size(); ++i) {
+        const WindowLevelPreset p = fileWlPresets_[i];
+        ImGui::PushID(static_cast<int>(i));
+        ImGui::TableNextRow();
+        ImGui::TableNextColumn();
+        const std::string::size_type colon = p.source.find(": ");
+        const std::string label = colon == std::string::npos ? p.name : p.name + "  " + p.source.substr(colon + 2);
+        if (ImGui::Selectable(label.c_str(), session.wlPreset == p.name)) {
+          applyWindowLevelPreset(p);
+          windowLevelChosen();
+        }
+        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", p.source.c_str());
+        ImGui::TableNextColumn();
+        ImGui::Text("%.0f", p.window);
+        ImGui::TableNextColumn();
+        ImGui::Text("%.0f", p.level);
+        ImGui::PopID();
+      }
+      ImGui::EndTable();
+    }
     if (ImGui::BeginTable("wl", 4, ImGuiTableFlags_BordersInnerH | ImGuiTableFlags_SizingStretchProp)) {
       ImGui::TableSetupColumn("key");
       ImGui::TableSetupColumn("preset");

@@ -162,17 +162,8 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   else if (name == "maximise") toggleMaximise(parseViewName(text()));
   else if (name == "tool") controller_.tool = parseToolName(text());
   else if (name == "preset") selectTfPreset(text());
-  else if (name == "wl-preset") {
-    const std::string n = text();
-    if (n == "auto") {
-      applyAutoWindowLevel();
-      return;
-    }
-    const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == n; });
-    if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", n));
-    applyWindowLevelPreset(*it);
-    windowLevelChosen(true);
-  } else if (name == "window-level") {
+  else if (name == "wl-preset") chooseWindowLevelPreset(text());
+  else if (name == "window-level") {
     if (!value.is_array() || value.size() != 2) throw Error("", "action window-level: expected [window, level]");
     session.wl = {value[0].get<double>(), value[1].get<double>()};
     session.wlPreset.clear();

@@ -65,6 +65,7 @@ void App::applyWindowLevelPreset(const WindowLevelPreset& p) {
 
 void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, double hi) {
   if (wlChosenForDataset_ || counts.empty()) return;
+  if (!autoWlChosen_ && !fileWlPresets_.empty()) return;  // the volume's own window stands
   if (autoWlChosen_ || valueUnit_ != "HU") {
     applyWindowLevelPreset(autoWindowLevel(counts, lo, hi));
     wlUnit_ = valueUnit_;
@@ -115,6 +116,35 @@ void App::applyAutoWindowLevel() {
   }
 }
 
+void App::chooseWindowLevelPreset(const std::string& name) {
+  if (name == "auto") {
+    applyAutoWindowLevel();
+    return;
+  }
+  if (name == "file" && fileWlPresets_.empty() && !fileWindowsRead_) {
+    // Before the volume's headers are read: its own window, where it names one, is the default.
+    wlChosenForDataset_ = autoWlChosen_ = false;
+    return;
+  }
+  if (name.starts_with("file")) {
+    const auto it = std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(),
+                                 [&](const auto& p) { return p.name == name; });
+    if (it == fileWlPresets_.end()) {
+      throw Error("", fileWlPresets_.empty()
+                          ? fmt::format("window/level \"{}\": the open volume's file names no window", name)
+                          : fmt::format("window/level \"{}\": the open volume's file names {} window(s)", name,
+                                        fileWlPresets_.size()));
+    }
+    applyWindowLevelPreset(*it);
+    windowLevelChosen();
+    return;
+  }
+  const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == name; });
+  if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", name));
+  applyWindowLevelPreset(*it);
+  windowLevelChosen(true);
+}
+
 void App::applyWindowLevelKey(int key) {
   if (key == 0) {
     applyAutoWindowLevel();
@@ -148,6 +178,17 @@ void App::selectTfPreset(const std::string& name) {
   }
 }
 
+void App::lookAtFileWindows() {
+  if (fileWindowsRead_ || !dataset_) return;
+  std::vector<SourceWindow> windows = dataset_->windows();
+  if (windows.empty()) return;  // not read yet, or none: looked at again next frame (a copy of nothing)
+  fileWindowsRead_ = true;
+  fileWlPresets_ = fileWindowLevelPresets(windows);
+  if (wlChosenForDataset_ || autoWlChosen_) return;
+  applyWindowLevelPreset(fileWlPresets_.front());
+  wlUnit_ = "file";
+}
+
 void App::lookAtPreview(const PreviewVolume& preview) {
   // While a volume is imported or arrives, the slices in so far are looked at again each time
   // their share doubles: their lowest value judges the unit where the source does not say it,
@@ -155,7 +196,7 @@ void App::lookAtPreview(const PreviewVolume& preview) {
   // until the reader sets a window; the store's histogram gives the last one.
   // The unit is judged while it is not known to be HU; the window while one is due.
   const bool judging = valueUnit_ != "HU";
-  const bool windowDue = !wlChosenForDataset_ && (autoWlChosen_ || wlUnit_ != "HU");
+  const bool windowDue = !wlChosenForDataset_ && (autoWlChosen_ || (wlUnit_ != "HU" && fileWlPresets_.empty()));
   if (judging || windowDue) {
     const double fraction = preview.fraction();
     if (fraction > 0 && fraction >= 2 * autoWlPreviewFraction_) {

@@ -340,6 +340,7 @@ Dataset::Dataset(const std::string& path, const fs::path& cacheDir) : path_(path
     info_.modality = source.modality;
     info_.seriesUid = source.seriesUid;
     info_.unit = source.unit;
+    info_.windows = source.windows;
     if (info_.description.empty()) info_.description = fs::path(path).filename().string();
     state_ = State::Ready;
     return;
@@ -607,6 +608,11 @@ dicom::PatientIdentity Dataset::patient() const {
 VolumeInfo Dataset::info() const {
   std::lock_guard lock(mutex_);
   return info_;
+}
+
+std::vector<SourceWindow> Dataset::windows() const {
+  std::lock_guard lock(mutex_);
+  return info_.windows;
 }
 
 }  // namespace octoray::viewer

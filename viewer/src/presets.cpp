@@ -118,4 +118,18 @@ WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, 
   return p;
 }
 
+std::vector<WindowLevelPreset> fileWindowLevelPresets(const std::vector<SourceWindow>& windows) {
+  std::vector<WindowLevelPreset> presets;
+  for (const SourceWindow& w : windows) {
+    WindowLevelPreset p;
+    p.name = presets.empty() ? "file" : fmt::format("file {}", presets.size() + 1);
+    p.window = w.width;
+    p.level = w.center;
+    p.source = w.explanation.empty() ? "the file's WindowCenter / WindowWidth"
+                                     : fmt::format("the file's WindowCenter / WindowWidth: {}", w.explanation);
+    presets.push_back(std::move(p));
+  }
+  return presets;
+}
+
 }  // namespace octoray::viewer

@@ -437,6 +437,13 @@ std::string provenance(const VolumeInfo& info, const BuildOptions& options) {
                  {"tiltDegrees", info.tiltDegrees},
                  {"resampled", info.resampled}, {"warnings", info.warnings.size()}};
   if (!options.sourceContentHash.empty()) j["source"]["contentHash"] = options.sourceContentHash;
+  if (!info.windows.empty()) {
+    nlohmann::json windows = nlohmann::json::array();
+    for (const SourceWindow& w : info.windows) {
+      windows.push_back({{"center", w.center}, {"width", w.width}, {"explanation", w.explanation}});
+    }
+    j["source"]["windows"] = windows;
+  }
   j["builder"] = {{"software", "octoray"}, {"storeVersion", kStoreVersion},
                   {"brickSize", options.brickSize}, {"border", options.border},
                   {"gradients", options.gradients}, {"codec", detail::codecName(options.codec)}};

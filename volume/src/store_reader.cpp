@@ -122,6 +122,20 @@ StoreSource parseStoreSource(const std::string& provenanceJson) {
   s.contentHash = text("contentHash");
   const auto integer = source.find("integerValues");
   if (integer != source.end() && integer->is_boolean()) s.integerValues = integer->get<bool>();
+  const auto windows = source.find("windows");
+  if (windows != source.end() && windows->is_array()) {
+    for (const nlohmann::json& w : *windows) {
+      if (!w.is_object()) continue;
+      const auto center = w.find("center"), width = w.find("width"), explanation = w.find("explanation");
+      if (center == w.end() || width == w.end() || !center->is_number() || !width->is_number()) continue;
+      SourceWindow window;
+      window.center = center->get<double>();
+      window.width = width->get<double>();
+      if (!std::isfinite(window.center) || !std::isfinite(window.width) || !(window.width > 0)) continue;
+      if (explanation != w.end() && explanation->is_string()) window.explanation = explanation->get<std::string>();
+      s.windows.push_back(std::move(window));
+    }
+  }
   return s;
 }
 

@@ -272,6 +272,10 @@ json inspectJson(const Arguments& a) {
   j["resampled"] = info.resampled;
   j["unit"] = info.unit;
   j["integerValues"] = info.integerValues;
+  j["windows"] = json::array();
+  for (const SourceWindow& w : info.windows) {
+    j["windows"].push_back({{"center", w.center}, {"width", w.width}, {"explanation", w.explanation}});
+  }
   j["valueRange"] = std::isfinite(lo) ? json{{"min", lo}, {"max", hi}} : json(nullptr);
   j["nonFiniteSamples"] = nonFinite;
   j["warnings"] = allWarnings(info, scan, index);
@@ -310,6 +314,10 @@ void printInspect(const json& j) {
   if (!j["valueRange"].is_null()) {
     fmt::print("values       {} .. {} {}\n", j["valueRange"]["min"].get<double>(),
                j["valueRange"]["max"].get<double>(), j["unit"].get<std::string>());
+  }
+  for (const auto& w : j["windows"]) {
+    fmt::print("window       W {} / L {}{}\n", w["width"].get<double>(), w["center"].get<double>(),
+               w["explanation"].get<std::string>().empty() ? "" : " (" + w["explanation"].get<std::string>() + ")");
   }
   for (const auto& w : j["warnings"]) fmt::print("warning: {}\n", w.get<std::string>());
   for (const auto& s : j["skipped"]) {

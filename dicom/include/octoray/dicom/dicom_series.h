@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "octoray/core/geometry.h"
+#include "octoray/dicom/volume_source.h"
 
 namespace octoray::dicom {
 
@@ -54,6 +55,10 @@ struct DicomSeries {
   int bitsStored = 0;         // of the first image (0 when absent)
   bool pixelSigned = false;   // PixelRepresentation == 1
   std::string photometric;
+  // The display windows most of the series' frames name (WindowCenter / WindowWidth, or an
+  // enhanced object's Frame VOI LUT), and what was wrong with any that were left out.
+  std::vector<SourceWindow> windows;
+  std::string windowWarning;
 
   std::vector<FrameRef> frames;  // in discovery order; geometry is resolved by DicomVolume
 

@@ -15,6 +15,15 @@
 
 namespace octoray {
 
+// A display window the source itself names (DICOM's WindowCenter / WindowWidth, PS3.3
+// C.11.2.1.2), in the volume's unit: the modality LUT is applied before it, so a CT's are in HU.
+// Readers and viewers show values in [center - width / 2, center + width / 2] from black to white.
+struct SourceWindow {
+  double center = 0;
+  double width = 1;          // > 0
+  std::string explanation;  // WindowCenterWidthExplanation ("BRAIN", "LUNG", ...) or ""
+};
+
 struct VolumeInfo {
   std::array<int64_t, 3> dims{0, 0, 0};  // samples along i (columns), j (rows), k (slices)
   Mat4 patientFromIndex;                 // index -> patient (LPS, mm); may contain shear
@@ -28,6 +37,9 @@ struct VolumeInfo {
   std::string description;               // series description or file name
   std::string seriesUid;                 // DICOM SeriesInstanceUID or empty
   std::string unit;                      // "HU" for CT after rescale, else "" (raw values)
+  // The windows the source names for display, in its order (the first is its default); empty
+  // where it names none (every format but DICOM).
+  std::vector<SourceWindow> windows;
   bool integerValues = true;             // every sample is an integer (exactly in float)
   // Every sample lies in [valueLowerBound, valueUpperBound], known from the storage type
   // (e.g. int16 raw data, or DICOM's BitsStored and rescale); NaN when unknown. Lets the

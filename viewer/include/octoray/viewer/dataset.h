@@ -144,6 +144,8 @@ class Dataset {
   const PreviewVolume* preview() const;
   // What the source is, once known (description, dims, spacing, modality, UID).
   VolumeInfo info() const;
+  // The display windows the source names (VolumeInfo::windows), once its headers are read.
+  std::vector<SourceWindow> windows() const;
   // For a DICOM source: patient name, ID, dates from its first image (empty for stores, which
   // keep no identity).
   dicom::PatientIdentity patient() const;

@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "octoray/dicom/volume_source.h"
+
 namespace octoray::viewer {
 
 struct WindowLevelPreset {
@@ -29,5 +31,11 @@ std::filesystem::path defaultWindowLevelPresetsPath();
 // empty histogram gives the whole range. Values and window are in the volume's unit, whatever
 // it is: this is what a volume without Hounsfield units (MR, or a file without units) opens with.
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi);
+
+// The windows a volume's file names (DICOM's WindowCenter / WindowWidth, VolumeInfo::windows),
+// as presets named "file", "file 2", ... in the file's order, their source its explanation
+// ("BRAIN") or where they come from. A volume that names one opens with the first, as Horos,
+// Weasis, OHIF and Slicer open a DICOM series; its values are in the volume's unit.
+std::vector<WindowLevelPreset> fileWindowLevelPresets(const std::vector<SourceWindow>& windows);
 
 }  // namespace octoray::viewer

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "octoray/core/geometry.h"
+#include "octoray/dicom/volume_source.h"
 #include "octoray/volume/octree_layout.h"
 #include "octoray/volume/store_format.h"
 
@@ -46,6 +47,9 @@ struct StoreSource {
   std::string unit;                   // "HU" where the values are Hounsfield units
   std::string contentHash;            // of the source files, where the builder was given it
   std::optional<bool> integerValues;  // whether every source value was an integer
+  // The display windows the source named (VolumeInfo::windows); entries that are not a finite
+  // center with a positive finite width are left out.
+  std::vector<SourceWindow> windows;
 };
 
 // Parses the source fields out of provenance JSON (what StoreReader::source() holds).
