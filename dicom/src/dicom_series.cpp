@@ -83,8 +83,10 @@ struct FileHeader {
   std::optional<std::vector<double>> orientation, pixelSpacing;
   std::vector<FrameRef> frames;
   bool multiFrame = false;
-  std::vector<SourceWindow> windows;  // of the file, or of an enhanced object's first frame
-  std::string windowProblem;          // why a window it names was left out, or ""
+  // The display windows each frame names (an enhanced object's per-frame or shared Frame VOI
+  // LUT; a classic file's own for each of its frames), as many as `frames`.
+  std::vector<std::vector<SourceWindow>> frameWindows;
+  std::string windowProblem;  // why a window it names was left out (the first such), or ""
 };
 
 bool isSecondaryCapture(const std::string& sopClass) {
@@ -130,29 +132,36 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
 
 // The display windows `ds` names, in order (PS3.3 C.11.2.1.2). They are shown as the linear
 // map from center - width / 2 to center + width / 2 (the standard's LINEAR_EXACT; its LINEAR
-// differs by half a unit). A pair that is not two finite numbers, or whose width is below 1
-// (C.11.2.1.2.1), is left out, and `problem` says so; so does a SIGMOID function, whose
-// windows are still shown, linear. A window named twice is kept once.
+// differs by half a unit). A pair that is not two finite numbers is left out, and so is a
+// width below 1 for the LINEAR function (the default) or not above 0 for LINEAR_EXACT and
+// SIGMOID (C.11.2.1.2.1, C.11.2.1.3.2); `problem` says so, where it is still empty. So does a
+// SIGMOID function, whose windows are still shown, linear. A window named twice is kept once.
 std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& problem) {
   const std::string centerText = stringValue(ds, kWindowCenter), widthText = stringValue(ds, kWindowWidth);
   if (centerText.empty() && widthText.empty()) return {};
+  const auto say = [&](std::string text) {
+    if (problem.empty()) problem = std::move(text);
+  };
+  const std::string function = stringValue(ds, kVoiLutFunction);
+  const bool linear = function.empty() || function == "LINEAR";
   const auto centers = numberValues(ds, kWindowCenter);
   const auto widths = numberValues(ds, kWindowWidth);
   if (!centers || !widths) {
-    problem = fmt::format("WindowCenter '{}' / WindowWidth '{}' are not finite numbers: no window "
+    say(fmt::format("WindowCenter '{}' / WindowWidth '{}' are not finite numbers: no window "
                           "from the file",
-                          centerText, widthText);
+                    centerText, widthText));
     return {};
   }
   if (centers->size() != widths->size()) {
-    problem = fmt::format("WindowCenter has {} values and WindowWidth {}: the first {} pairs are used",
-                          centers->size(), widths->size(), std::min(centers->size(), widths->size()));
+    say(fmt::format("WindowCenter has {} values and WindowWidth {}: the first {} pairs are used",
+                    centers->size(), widths->size(), std::min(centers->size(), widths->size())));
   }
   const std::vector<std::string> explanations = stringValues(ds, kWindowExplanation);
   std::vector<SourceWindow> windows;
   for (std::size_t i = 0; i < std::min(centers->size(), widths->size()); ++i) {
-    if ((*widths)[i] < 1) {
-      problem = fmt::format("WindowWidth {} is below 1: that window is left out", (*widths)[i]);
+    if (linear ? (*widths)[i] < 1 : !((*widths)[i] > 0)) {
+      say(fmt::format("WindowWidth {} is {} for the {} function: that window is left out", (*widths)[i],
+                      linear ? "below 1" : "not above 0", linear ? "LINEAR" : function));
       continue;
     }
     SourceWindow w;
@@ -165,9 +174,7 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
     });
     if (!repeat) windows.push_back(std::move(w));
   }
-  if (stringValue(ds, kVoiLutFunction) == "SIGMOID" && !windows.empty()) {
-    problem = "VOILUTFunction SIGMOID: its windows are shown as linear ones";
-  }
+  if (function == "SIGMOID" && !windows.empty()) say("VOILUTFunction SIGMOID: its windows are shown as linear ones");
   return windows;
 }
 
@@ -191,6 +198,12 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
     } else {
       h.orientation.reset();
     }
+    // Each frame's own display windows (Frame VOI LUT), or none.
+    if (auto voi = groupMacro(mine, shared, kFrameVoiLutSeq)) {
+      h.frameWindows.push_back(readWindows(*voi, h.windowProblem));
+    } else {
+      h.frameWindows.emplace_back();
+    }
     if (f == 0) {
       if (auto orient = groupMacro(mine, shared, kPlaneOrientationSeq)) {
         h.orientation = numberValues(*orient, kOrientation);
@@ -201,9 +214,6 @@ void readEnhancedFrames(const gdcm::DataSet& ds, FileHeader& h, int frameCount) 
       if (auto frameType = groupMacro(mine, shared, kFrameTypeSeq)) {
         auto type = stringValues(*frameType, kFrameType);
         if (!type.empty()) h.imageType = type;
-      }
-      if (auto voi = groupMacro(mine, shared, kFrameVoiLutSeq)) {
-        h.windows = readWindows(*voi, h.windowProblem);
       }
     }
     if (auto transform = groupMacro(mine, shared, kPixelValueTransformSeq)) {
@@ -326,7 +336,7 @@ FileHeader readHeader(const std::string& path) {
   } else {
     h.orientation = numberValues(ds, kOrientation);
     h.pixelSpacing = numberValues(ds, kPixelSpacing);
-    h.windows = readWindows(ds, h.windowProblem);
+    const std::vector<SourceWindow> windows = readWindows(ds, h.windowProblem);
     const auto position = numberValues(ds, kPosition);
     const double slope = rescaleValue(ds, kRescaleSlope, 1.0, path, "RescaleSlope");
     const double intercept = rescaleValue(ds, kRescaleIntercept, 0.0, path, "RescaleIntercept");
@@ -346,6 +356,7 @@ FileHeader readHeader(const std::string& path) {
       frame.rescaleSlope = slope;
       frame.rescaleIntercept = intercept;
       h.frames.push_back(frame);
+      h.frameWindows.push_back(windows);
     }
   }
   const std::string ts = file.GetHeader().GetDataSetTransferSyntax().GetString()
@@ -585,10 +596,10 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
   std::map<std::string, DicomSeries> groups;
   std::vector<std::string> order;
   // The windows each series' frames name, by what they name: the most frames' choice wins, the
-  // first file's on a tie (a scanner may write each slice's own, or none on some slices).
+  // first named on a tie (a scanner may write each slice's own, or none on some slices).
   struct WindowChoice {
     std::size_t frames = 0;
-    std::size_t firstFile = 0;
+    std::size_t first = 0;  // the order in which the choices were first seen
     std::vector<SourceWindow> windows;
   };
   std::map<std::string, std::map<std::string, WindowChoice>> windowChoices;
@@ -626,16 +637,17 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
       }
     }
     s.multiFrame = s.multiFrame || h.multiFrame;
-    std::string named;
-    for (const SourceWindow& w : h.windows) {
-      named += fmt::format("{}|{}|{}\\", w.center, w.width, w.explanation);
+    for (const std::vector<SourceWindow>& windows : h.frameWindows) {
+      std::string named;
+      for (const SourceWindow& w : windows) named += fmt::format("{}|{}|{}\\", w.center, w.width, w.explanation);
+      auto& choices = windowChoices[key];
+      auto [choice, first] = choices.try_emplace(named);
+      if (first) {
+        choice->second.first = choices.size();
+        choice->second.windows = windows;
+      }
+      ++choice->second.frames;
     }
-    auto [choice, first] = windowChoices[key].try_emplace(named);
-    if (first) {
-      choice->second.firstFile = i;
-      choice->second.windows = h.windows;
-    }
-    choice->second.frames += h.frames.size();
     if (!h.windowProblem.empty() && s.windowWarning.empty()) {
       s.windowWarning = h.path + ": " + h.windowProblem;
     }
@@ -645,7 +657,7 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
     const WindowChoice* best = nullptr;
     for (const auto& [named, choice] : choices) {
       if (!best || choice.frames > best->frames ||
-          (choice.frames == best->frames && choice.firstFile < best->firstFile)) {
+          (choice.frames == best->frames && choice.first < best->first)) {
         best = &choice;
       }
     }

@@ -480,7 +480,11 @@ void writeEnhancedSlices(const std::filesystem::path& folder, const SyntheticSer
   putString(transformation, 0x0028, 0x1054, gdcm::VR::LO, "HU");
   gdcm::DataSet acquisition;
   putString(acquisition, 0x0018, 0x1120, gdcm::VR::DS, decimalString(out.tiltDegrees));
+  gdcm::DataSet window;
+  putString(window, 0x0028, 0x1050, gdcm::VR::DS, "40");
+  putString(window, 0x0028, 0x1051, gdcm::VR::DS, "400");
   gdcm::DataSet shared;
+  putSequence(shared, 0x0028, 0x9132, {window});          // FrameVOILUTSequence
   putSequence(shared, 0x0028, 0x9110, {measures});        // PixelMeasuresSequence
   putSequence(shared, 0x0020, 0x9116, {orientation});     // PlaneOrientationSequence
   putSequence(shared, 0x0028, 0x9145, {transformation});  // PixelValueTransformationSequence
@@ -504,6 +508,13 @@ void writeEnhancedSlices(const std::filesystem::path& folder, const SyntheticSer
     gdcm::DataSet group;
     putSequence(group, 0x0020, 0x9111, {content});   // FrameContentSequence
     putSequence(group, 0x0020, 0x9113, {position});  // PlanePositionSequence
+    if (static_cast<int>(frame) < spec.framesWithOwnWindow) {
+      gdcm::DataSet own;
+      putString(own, 0x0028, 0x1050, gdcm::VR::DS, decimalString(spec.ownWindow.first));
+      putString(own, 0x0028, 0x1051, gdcm::VR::DS, decimalString(spec.ownWindow.second));
+      putString(own, 0x0028, 0x1055, gdcm::VR::LO, "LUNG");
+      putSequence(group, 0x0028, 0x9132, {own});  // FrameVOILUTSequence
+    }
     perFrame.push_back(group);
     appendFrame(bytes, spec, g, image.positionMm, g.rowDirection, g.columnDirection,
                 g.rowSpacingMm, g.columnSpacingMm, true, where);

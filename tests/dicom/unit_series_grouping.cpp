@@ -1,8 +1,4 @@
 // How scanDicom splits and classifies what shares one SeriesInstanceUID.
-#include <gdcmDicts.h>
-#include <gdcmGlobal.h>
-#include <gdcmReader.h>
-#include <gdcmWriter.h>
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -10,31 +6,16 @@
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/dicom/synthetic_series.h"
+#include "dicom_edit.h"
 #include "test_paths.h"
 
 namespace octoray::dicom {
 namespace {
 
+using test::DicomTag;
 // Rewrites string elements of a DICOM file in place (for building awkward exams).
-void rewrite(const std::filesystem::path& path, const std::vector<std::pair<gdcm::Tag, std::string>>& values) {
-  gdcm::Reader reader;
-  reader.SetFileName(path.c_str());
-  ASSERT_TRUE(reader.Read()) << path;
-  gdcm::DataSet& ds = reader.GetFile().GetDataSet();
-  for (const auto& [tag, text] : values) {
-    gdcm::DataElement de(tag);
-    // An element the file lacks gets the VR of the dictionary.
-    de.SetVR(ds.FindDataElement(tag) ? ds.GetDataElement(tag).GetVR()
-                                     : gdcm::Global::GetInstance().GetDicts().GetDictEntry(tag).GetVR());
-    std::string padded = text;
-    if (padded.size() % 2) padded += (tag == gdcm::Tag(0x0020, 0x000e) ? '\0' : ' ');
-    de.SetByteValue(padded.data(), static_cast<uint32_t>(padded.size()));
-    ds.Replace(de);
-  }
-  gdcm::Writer writer;
-  writer.SetFileName(path.c_str());
-  writer.SetFile(reader.GetFile());
-  ASSERT_TRUE(writer.Write()) << path;
+void rewrite(const std::filesystem::path& path, const std::vector<std::pair<DicomTag, std::string>>& values) {
+  ASSERT_NO_THROW(test::rewriteDicomStrings(path, values));
 }
 
 TEST(SeriesGrouping, LocalizerFiledUnderTheAxialUidInTheSameOrientationStaysApart) {
@@ -50,9 +31,9 @@ TEST(SeriesGrouping, LocalizerFiledUnderTheAxialUidInTheSameOrientationStaysApar
   ASSERT_FALSE(localizer.empty());
   // The localiser now claims the axial series, an axial orientation and the axial pixel
   // spacing: only its ImageType still tells it apart.
-  rewrite(localizer, {{gdcm::Tag(0x0020, 0x000e), written.seriesUid},
-                      {gdcm::Tag(0x0020, 0x0037), "1\\0\\0\\0\\1\\0"},
-                      {gdcm::Tag(0x0028, 0x0030), "0.5\\0.5"}});
+  rewrite(localizer, {{{0x0020, 0x000e}, written.seriesUid},
+                      {{0x0020, 0x0037}, "1\\0\\0\\0\\1\\0"},
+                      {{0x0028, 0x0030}, "0.5\\0.5"}});
 
   const DicomScan scan = scanDicom(dir);
   ASSERT_EQ(scan.series.size(), 2u);
@@ -88,8 +69,8 @@ TEST(SeriesGrouping, HiddenFilesAreIgnored) {
   EXPECT_EQ(scan.series[0].frames.size(), 5u);
 }
 
-const gdcm::Tag kCenter(0x0028, 0x1050), kWidth(0x0028, 0x1051), kExplanation(0x0028, 0x1055),
-    kFunction(0x0028, 0x1056);
+const DicomTag kCenter{0x0028, 0x1050}, kWidth{0x0028, 0x1051}, kExplanation{0x0028, 0x1055},
+    kFunction{0x0028, 0x1056};
 
 // What each written file names as its display windows, and the volume opened from them.
 struct WindowedSeries {
@@ -97,7 +78,7 @@ struct WindowedSeries {
   VolumeInfo info;
 };
 WindowedSeries writeWithWindows(const std::string& name,
-                                const std::vector<std::vector<std::pair<gdcm::Tag, std::string>>>& perFile) {
+                                const std::vector<std::vector<std::pair<DicomTag, std::string>>>& perFile) {
   const auto dir = test::freshTempDir(name);
   SyntheticSeriesSpec spec;
   spec.sliceCount = static_cast<int>(perFile.size());
@@ -116,9 +97,9 @@ WindowedSeries writeWithWindows(const std::string& name,
 // are what most of its slices name, in their order with their explanations; the volume keeps
 // them for the viewer and the store.
 TEST(SeriesWindows, TheWindowsMostSlicesNameInTheirOrder) {
-  const std::vector<std::pair<gdcm::Tag, std::string>> two = {
+  const std::vector<std::pair<DicomTag, std::string>> two = {
       {kCenter, "40\\-600"}, {kWidth, "400\\1500"}, {kExplanation, "SOFT TISSUE\\LUNG"}};
-  const std::vector<std::pair<gdcm::Tag, std::string>> other = {{kCenter, "50"}, {kWidth, "350"}};
+  const std::vector<std::pair<DicomTag, std::string>> other = {{kCenter, "50"}, {kWidth, "350"}};
   const WindowedSeries w = writeWithWindows("windows", {other, two, two, two, other});
   ASSERT_EQ(w.info.windows.size(), 2u);
   EXPECT_EQ(w.info.windows[0].center, 40);
@@ -130,7 +111,7 @@ TEST(SeriesWindows, TheWindowsMostSlicesNameInTheirOrder) {
   EXPECT_TRUE(w.info.warnings.empty()) << w.info.warnings.front();
 
   // A window named twice (Philips' "40\\40" / "80\\80") is one; on a tie the first file's wins.
-  const std::vector<std::pair<gdcm::Tag, std::string>> twice = {{kCenter, "40\\40"}, {kWidth, "80\\80"}};
+  const std::vector<std::pair<DicomTag, std::string>> twice = {{kCenter, "40\\40"}, {kWidth, "80\\80"}};
   const WindowedSeries tie = writeWithWindows("windows-tie", {twice, other, twice, other});
   ASSERT_EQ(tie.info.windows.size(), 1u);
   EXPECT_EQ(tie.info.windows[0].center, 40);
@@ -138,18 +119,43 @@ TEST(SeriesWindows, TheWindowsMostSlicesNameInTheirOrder) {
   EXPECT_EQ(tie.info.windows[0].explanation, "");
 }
 
-// A window that is not a pair of finite numbers, or narrower than 1 (PS3.3 C.11.2.1.2.1), is
-// left out with a warning naming the file; the series is read as before. A SIGMOID function is
+// An enhanced object names its windows per frame (Frame VOI LUT, per-frame or shared): the
+// window most frames name wins, as for single-frame files.
+TEST(SeriesWindows, AnEnhancedObjectsFramesVoteWithTheirOwnFrameVoiLut) {
+  for (const int own : {3, 2}) {
+    SCOPED_TRACE(own);
+    const auto dir = test::freshTempDir("windows-enhanced");
+    SyntheticSeriesSpec spec;
+    spec.sliceCount = 5;
+    spec.layout = SyntheticLayout::EnhancedMultiFrame;
+    spec.framesWithOwnWindow = own;
+    writeSyntheticSeries(dir, spec);
+    const DicomScan scan = scanDicom(dir);
+    ASSERT_EQ(scan.series.size(), 1u);
+    ASSERT_TRUE(scan.series[0].multiFrame);
+    const VolumeInfo info = openDicomSeries(scan.series[0])->info();
+    ASSERT_EQ(info.windows.size(), 1u);
+    EXPECT_EQ(info.windows[0].center, own == 3 ? -600 : 40);
+    EXPECT_EQ(info.windows[0].width, own == 3 ? 1500 : 400);
+    EXPECT_EQ(info.windows[0].explanation, own == 3 ? "LUNG" : "");
+  }
+}
+
+// A window that is not a pair of finite numbers, or narrower than 1 (LINEAR, PS3.3
+// C.11.2.1.2.1) or not wider than 0 (LINEAR_EXACT, SIGMOID: C.11.2.1.3.2; a width of 0.5 is
+// kept), is left out with a warning naming the file; the series is read as before. SIGMOID is
 // said; its windows are shown as linear ones.
 TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
   struct Case {
     const char* name;
-    std::vector<std::pair<gdcm::Tag, std::string>> values;
+    std::vector<std::pair<DicomTag, std::string>> values;
     std::size_t windowsKept;
     const char* warning;
   };
   const Case cases[] = {
-      {"narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}}, 1, "WindowWidth 0.5 is below 1"},
+      {"narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}}, 1, "WindowWidth 0.5 is below 1 for the LINEAR"},
+      {"exact-zero", {{kCenter, "40\\300"}, {kWidth, "0\\0.5"}, {kFunction, "LINEAR_EXACT"}}, 1,
+       "WindowWidth 0 is not above 0 for the LINEAR_EXACT"},
       {"junk", {{kCenter, "forty"}, {kWidth, "80"}}, 0,
        "WindowCenter 'forty' / WindowWidth '80' are not finite numbers"},
       {"uneven", {{kCenter, "40\\300"}, {kWidth, "80"}}, 1, "WindowCenter has 2 values and WindowWidth 1"},
@@ -159,7 +165,7 @@ TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
     SCOPED_TRACE(c.name);
     const WindowedSeries w = writeWithWindows(std::string("windows-") + c.name, {c.values, c.values, c.values});
     EXPECT_EQ(w.info.windows.size(), c.windowsKept);
-    for (const SourceWindow& kept : w.info.windows) EXPECT_GE(kept.width, 1);
+    for (const SourceWindow& kept : w.info.windows) EXPECT_GE(kept.width, std::string(c.name) == "exact-zero" ? 0.5 : 1);
     ASSERT_EQ(w.info.warnings.size(), 1u);
     EXPECT_NE(w.info.warnings[0].find(c.warning), std::string::npos) << w.info.warnings[0];
     EXPECT_EQ(w.info.warnings[0].rfind(w.dir.string() + "/", 0), 0u) << w.info.warnings[0];  // names the file

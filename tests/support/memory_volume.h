@@ -37,6 +37,7 @@ class MemoryVolume final : public VolumeSource {
   void setPatientFromIndex(const Mat4& m) { info_.patientFromIndex = m; }
   // The display windows the source names (DICOM's WindowCenter / WindowWidth).
   void setWindows(std::vector<SourceWindow> windows) { info_.windows = std::move(windows); }
+  void setDescription(std::string description) { info_.description = std::move(description); }
   int slabsRead = 0;
 
  private:

@@ -24,6 +24,7 @@
 #include "octoray/viewer/script.h"
 #include "octoray/viewer/session.h"
 #include "octoray/volume/store_builder.h"
+#include "dicom_edit.h"
 #include "test_paths.h"
 
 namespace octoray::viewer {
@@ -393,8 +394,6 @@ TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
   refused(R"({"name": "a", "window": 80, "level": 40})", "expected {", "7");
 }
 
-// Auto window/level: the 0.1st and 99.9th percentiles of the histogram, interpolated inside
-// their bins (100 bins of width 10 over [0, 1000)).
 // The windows a volume's file names become presets "file", "file 2", ... in its order, the
 // window its width and the level its center, the explanation in the source; none, none.
 TEST(ViewerPresets, TheFilesWindowsArePresetsInItsOrder) {
@@ -413,6 +412,8 @@ TEST(ViewerPresets, TheFilesWindowsArePresetsInItsOrder) {
   EXPECT_EQ(presets[1].source, "the file's WindowCenter / WindowWidth: LUNG");
 }
 
+// Auto window/level: the 0.1st and 99.9th percentiles of the histogram, interpolated inside
+// their bins (100 bins of width 10 over [0, 1000)).
 TEST(ViewerPresets, AutoWindowLevelSpansTheMiddleOfTheValues) {
   // 10,000 values spread evenly over bins 20-69 (200-700), and 10 outliers in each of the
   // first and the last bin: 0.1 % of the 10,020 samples is 10.02, so the percentiles leave the
@@ -613,6 +614,45 @@ TEST(ViewerDataset, AnIncomingSeriesShowsEachSliceAsItLands) {
   EXPECT_DOUBLE_EQ(preview.fraction(), 1.0);
   ASSERT_NE(dataset.store(), nullptr);
   EXPECT_EQ(dataset.store()->header().dims[2], 12);
+}
+
+// The display windows of a series arriving from a PACS: the first landed file's while it
+// arrives (all the preview has), the import's (most slices' choice) once it is ready.
+TEST(ViewerDataset, AnIncomingSeriesNamesItsFirstFilesWindowsUntilImported) {
+  const auto dir = test::freshTempDir("viewer_incoming_windows");
+  dicom::SyntheticSeriesSpec spec;
+  spec.rows = 16;
+  spec.columns = 16;
+  spec.sliceCount = 6;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir / "source", spec);
+  auto incoming = listingOf(written, dir / "incoming");
+  const auto sourceOf = [&](std::size_t s) { return dir / "source" / incoming->slices[s].file.filename(); };
+  for (std::size_t s = 0; s < 2; ++s) {  // the first two to land name a lung window
+    test::rewriteDicomStrings(sourceOf(s), {{{0x0028, 0x1050}, "-600"}, {{0x0028, 0x1051}, "1500"},
+                                            {{0x0028, 0x1055}, "LUNG"}});
+  }
+  Dataset dataset(incoming, dir / "cache");
+  EXPECT_TRUE(dataset.windows().empty());  // nothing has landed
+  land(sourceOf(0), incoming->slices[0].file);
+  ASSERT_TRUE(waitFor([&] { return dataset.preview() != nullptr; })) << dataset.status();
+  std::vector<SourceWindow> windows = dataset.windows();
+  ASSERT_EQ(windows.size(), 1u);
+  EXPECT_EQ(windows[0].center, -600);
+  EXPECT_EQ(windows[0].width, 1500);
+  EXPECT_EQ(windows[0].explanation, "LUNG");
+  for (std::size_t s = 1; s < 6; ++s) land(sourceOf(s), incoming->slices[s].file);
+  incoming->state = IncomingSeries::State::Complete;
+  ASSERT_TRUE(waitFor([&] { return dataset.state() != Dataset::State::Importing; }, 120)) << dataset.status();
+  ASSERT_EQ(dataset.state(), Dataset::State::Ready) << dataset.error();
+  windows = dataset.windows();
+  ASSERT_EQ(windows.size(), 1u);
+  EXPECT_EQ(windows[0].center, 40);  // octoray-sample-series' window, in four of the six
+  EXPECT_EQ(windows[0].width, 400);
+  EXPECT_EQ(windows[0].explanation, "");
+  // The store keeps it: opened as a store, the same.
+  const Dataset store(dataset.storePath(), dir / "cache");
+  ASSERT_EQ(store.windows().size(), 1u);
+  EXPECT_EQ(store.windows()[0].width, 400);
 }
 
 // The listings that give no grid say why, by the import's rules; a file of another

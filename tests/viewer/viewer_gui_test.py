@@ -535,6 +535,9 @@ class ViewerGui(unittest.TestCase):
             {"type": "dump-state", "path": vw.path("two.json")},
             {"type": "action", "name": "wl-preset", "value": "file 2"},
             {"type": "screenshot", "path": vw.path("two-lung.png")},
+            {"type": "action", "name": "open", "value": nifti},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("nifti-after-chosen.json")},
             {"type": "action", "name": "open", "value": self.head_store},
             {"type": "wait-converged"},
             {"type": "screenshot", "path": vw.path("head-own.png")},
@@ -564,6 +567,9 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(state["session"]["windowLevel"]["preset"], "auto")
         lung = load_json(vw.path("two-lung.png.json"))
         self.assertEqual(lung["session"]["windowLevel"], {"window": 1500, "level": -600, "preset": "file 2"})
+        # A volume's own window, even chosen, is not the next volume's: the NIfTI CT after it,
+        # which names none, opens with the table's first preset.
+        self.assertEqual(load_json(vw.path("nifti-after-chosen.json"))["session"]["windowLevel"]["preset"], "brain")
         # The head opened next, with "auto" no longer chosen: its own window, as read by pydicom.
         state = load_json(vw.path("head-own.png.json"))
         wl = state["session"]["windowLevel"]
@@ -575,6 +581,24 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(state["dataset"]["fileWindows"], [])
         self.assertEqual(state["dataset"]["unit"], "HU")
         self.assertEqual(state["session"]["windowLevel"]["preset"], "brain")
+        # Named before they are known: --wl "file 2" on a store of that series, and a script's
+        # wl-preset "file 2" right after opening the folder, which is still being imported.
+        two_store = vw.path("two.octoray")
+        p = run([os.path.join(BIN, "octoray-import"), two, "-o", two_store])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        vw.run(two_store, [
+            {"type": "dump-state", "path": vw.path("wl-file-2.json")},
+            {"type": "action", "name": "open", "value": two},
+            {"type": "action", "name": "wl-preset", "value": "file 2"},
+            {"type": "dump-state", "path": vw.path("pending.json")},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("pending-applied.json")},
+        ], extra=["--wl", "file 2"], cache="cache-pending")
+        self.assertEqual(load_json(vw.path("wl-file-2.json"))["session"]["windowLevel"],
+                         {"window": 1500, "level": -600, "preset": "file 2"})
+        self.assertEqual(load_json(vw.path("pending.json"))["dataset"]["state"], "importing")
+        self.assertEqual(load_json(vw.path("pending-applied.json"))["session"]["windowLevel"],
+                         {"window": 1500, "level": -600, "preset": "file 2"})
 
     # The same while a series without HU arrives from a PACS (octoray's synthetic series
     # relabelled MR): the slices in so far show with the auto window/level of those slices,

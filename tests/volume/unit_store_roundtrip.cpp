@@ -182,6 +182,21 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
     EXPECT_FALSE(source.integerValues.has_value()) << provenance;
     EXPECT_TRUE(source.windows.empty()) << provenance;
   }
+  // DICOM text in the file's character set (ISO_IR 100: Sch\xe4del, not UTF-8) is stored with
+  // U+FFFD for the bytes that are not UTF-8, instead of failing the build.
+  {
+    MemoryVolume latin1({16, 16, 16}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });
+    latin1.setDescription("Sch\xe4" "del");
+    latin1.setWindows({{40, 80, "Sch\xe4" "del"}});
+    BuildOptions options;
+    options.brickSize = 16;
+    const std::string path = (dir / "latin1.octoray").string();
+    ASSERT_NO_THROW(buildStore(latin1, path, options));
+    const StoreReader store(path);
+    EXPECT_EQ(store.source().description, "Sch\xef\xbf\xbd" "del");
+    ASSERT_EQ(store.source().windows.size(), 1u);
+    EXPECT_EQ(store.source().windows[0].explanation, "Sch\xef\xbf\xbd" "del");
+  }
   // A window that is not a finite center with a positive width is left out, the others kept.
   const StoreSource windows = parseStoreSource(
       R"({"source": {"windows": [{"center": 40, "width": 80}, {"center": "40", "width": 80}, 7,

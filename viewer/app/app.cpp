@@ -249,7 +249,8 @@ void App::resetForDataset(const std::string& source) {
   sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
   wlChosenForDataset_ = tfChosenForDataset_ = false;
   fileWlPresets_.clear();
-  fileWindowsRead_ = false;
+  fileWindowsFinal_ = false;
+  pendingFileWindow_.clear();
   autoWlPreviewFraction_ = 0;
   openedAt_ = std::chrono::steady_clock::now();
   firstMprMs_ = first3dMs_ = -1;
@@ -263,6 +264,7 @@ void App::open(const std::string& path) {
     messages.push_back(e.what());
     return;
   }
+  lookAtFileWindows();  // a store's are known now: --wl and a script's next step may name them
   addRecent(path);
 }
 

@@ -209,9 +209,9 @@ class App {
   std::filesystem::path cacheDir() const;
   void applyWindowLevelPreset(const WindowLevelPreset& p);
   void applyWindowLevelKey(int key);  // 1-9: the table's presets; 0: auto
-  // The reader chose a window by name (--wl, a script's wl-preset): "auto", "file" (the
-  // volume's own; as without --wl where it names none), "file 2", ..., or the table's. Throws
-  // octoray::Error for a name that is none of them.
+  // The reader chose a window by name (--wl, a script's wl-preset): "auto", "file", "file 2",
+  // ... (the volume's own, applied once its headers are read; "file" where it names none
+  // changes nothing), or the table's. Throws octoray::Error for a name that is none of them.
   void chooseWindowLevelPreset(const std::string& name);
   // The windows the open volume's file names, as presets (fileWindowLevelPresets); empty before
   // its headers are read and where it names none.
@@ -341,7 +341,7 @@ class App {
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
   // The unit of the values the current window was set for ("HU": a CT window; "?": set before
-  // the volume's unit was known; "file": a volume's own window, applied for it). A CT opened
+  // the volume's unit was known; "file": a volume's own window, applied or chosen for it). A CT opened
   // after a window set for other values, or after another volume's own, gets the table's first
   // preset.
   std::string wlUnit_ = "HU";
@@ -359,10 +359,13 @@ class App {
   // automatic window (windows.cpp).
   void lookAtPreview(const PreviewVolume& preview);
   // Once the volume's headers are read: the windows its file names, the first applied where
-  // the reader chose none (windows.cpp).
+  // the reader chose none, or the one the reader asked for before they were known (windows.cpp).
   void lookAtFileWindows();
+  // The reader chose one of the volume's own windows.
+  void fileWindowChosen();
   std::vector<WindowLevelPreset> fileWlPresets_;
-  bool fileWindowsRead_ = false;     // the dataset's windows were looked at (it names some)
+  bool fileWindowsFinal_ = false;  // fileWlPresets_ holds what the whole volume names
+  std::string pendingFileWindow_;  // "file N" asked for before the volume's windows were known
   bool crosshairSet_ = false;        // the crosshair has been placed for this dataset
   bool datasetFailedOpen_ = false, datasetErrorShown_ = false;
   bool finalShotTaken_ = false;

@@ -134,7 +134,7 @@ nlohmann::json App::stateJson() {
 
 void App::dumpState(const std::string& path) {
   std::ofstream out(path);
-  out << stateJson().dump(2) << "\n";
+  out << stateJson().dump(2, ' ', false, nlohmann::json::error_handler_t::replace) << "\n";
   if (!out) messages.push_back(path + ": cannot write the state file");
 }
 
@@ -161,7 +161,7 @@ void App::capture() {
   }
   try {
     gpu::writePng(image, shot_->path);
-    std::ofstream(shot_->path + ".json") << stateJson().dump(2) << "\n";
+    std::ofstream(shot_->path + ".json") << stateJson().dump(2, ' ', false, nlohmann::json::error_handler_t::replace) << "\n";
   } catch (const Error& e) {
     messages.push_back(e.what());
   }

@@ -160,7 +160,7 @@ void App::drawPanels() {
         const std::string label = colon == std::string::npos ? p.name : p.name + "  " + p.source.substr(colon + 2);
         if (ImGui::Selectable(label.c_str(), session.wlPreset == p.name)) {
           applyWindowLevelPreset(p);
-          windowLevelChosen();
+          fileWindowChosen();
         }
         if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", p.source.c_str());
         ImGui::TableNextColumn();

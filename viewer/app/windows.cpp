@@ -121,28 +121,30 @@ void App::chooseWindowLevelPreset(const std::string& name) {
     applyAutoWindowLevel();
     return;
   }
-  if (name == "file" && fileWlPresets_.empty() && !fileWindowsRead_) {
-    // Before the volume's headers are read: its own window, where it names one, is the default.
-    wlChosenForDataset_ = autoWlChosen_ = false;
-    return;
-  }
-  if (name.starts_with("file")) {
+  if (name == "file" || name.starts_with("file ")) {
     const auto it = std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(),
                                  [&](const auto& p) { return p.name == name; });
-    if (it == fileWlPresets_.end()) {
-      throw Error("", fileWlPresets_.empty()
-                          ? fmt::format("window/level \"{}\": the open volume's file names no window", name)
-                          : fmt::format("window/level \"{}\": the open volume's file names {} window(s)", name,
-                                        fileWlPresets_.size()));
+    if (it != fileWlPresets_.end()) {
+      applyWindowLevelPreset(*it);
+      fileWindowChosen();
+    } else if (!fileWindowsFinal_) {
+      pendingFileWindow_ = name;  // applied once the volume's headers say (lookAtFileWindows)
+    } else if (name != "file") {  // "file" where the volume names none changes nothing
+      throw Error("", fmt::format("window/level \"{}\": the open volume's file names {} window{}", name,
+                                  fileWlPresets_.size(), fileWlPresets_.size() == 1 ? "" : "s"));
     }
-    applyWindowLevelPreset(*it);
-    windowLevelChosen();
     return;
   }
   const auto it = std::find_if(wlPresets.begin(), wlPresets.end(), [&](const auto& p) { return p.name == name; });
   if (it == wlPresets.end()) throw Error("", fmt::format("no window/level preset \"{}\"", name));
   applyWindowLevelPreset(*it);
   windowLevelChosen(true);
+}
+
+void App::fileWindowChosen() {
+  windowLevelChosen();
+  pendingFileWindow_.clear();
+  wlUnit_ = "file";  // another volume's own window: the next volume gets its own or the default
 }
 
 void App::applyWindowLevelKey(int key) {
@@ -179,12 +181,33 @@ void App::selectTfPreset(const std::string& name) {
 }
 
 void App::lookAtFileWindows() {
-  if (fileWindowsRead_ || !dataset_) return;
-  std::vector<SourceWindow> windows = dataset_->windows();
-  if (windows.empty()) return;  // not read yet, or none: looked at again next frame (a copy of nothing)
-  fileWindowsRead_ = true;
-  fileWlPresets_ = fileWindowLevelPresets(windows);
-  if (wlChosenForDataset_ || autoWlChosen_) return;
+  if (!dataset_ || fileWindowsFinal_) return;
+  // A store's windows are known at once; an import's once its headers are read, and final once
+  // it is ready: a series arriving from a PACS shows its first file's until every file is in.
+  fileWindowsFinal_ = dataset_->state() != Dataset::State::Importing;
+  std::vector<WindowLevelPreset> presets = fileWindowLevelPresets(dataset_->windows());
+  const auto same = [](const WindowLevelPreset& a, const WindowLevelPreset& b) {
+    return a.name == b.name && a.window == b.window && a.level == b.level && a.source == b.source;
+  };
+  const bool changed = !std::equal(presets.begin(), presets.end(), fileWlPresets_.begin(), fileWlPresets_.end(), same);
+  fileWlPresets_ = std::move(presets);
+  if (!pendingFileWindow_.empty()) {
+    const std::string name = pendingFileWindow_;
+    const auto it = std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(),
+                                 [&](const auto& p) { return p.name == name; });
+    if (it != fileWlPresets_.end()) {
+      applyWindowLevelPreset(*it);
+      fileWindowChosen();
+    } else if (fileWindowsFinal_) {
+      pendingFileWindow_.clear();
+      if (name != "file") {
+        messages.push_back(fmt::format("{}: window/level \"{}\": its file names {} window{}", dataset_->path(), name,
+                                       fileWlPresets_.size(), fileWlPresets_.size() == 1 ? "" : "s"));
+      }
+    }
+    return;
+  }
+  if (!changed || fileWlPresets_.empty() || wlChosenForDataset_ || autoWlChosen_) return;
   applyWindowLevelPreset(fileWlPresets_.front());
   wlUnit_ = "file";
 }

@@ -447,7 +447,10 @@ std::string provenance(const VolumeInfo& info, const BuildOptions& options) {
   j["builder"] = {{"software", "octoray"}, {"storeVersion", kStoreVersion},
                   {"brickSize", options.brickSize}, {"border", options.border},
                   {"gradients", options.gradients}, {"codec", detail::codecName(options.codec)}};
-  return j.dump();
+  // DICOM text (a description, a window's explanation) is in the file's character set, often
+  // not UTF-8 (ISO_IR 100): its bytes that are not UTF-8 become U+FFFD instead of failing the
+  // build.
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 template <typename T>

@@ -370,7 +370,7 @@ int buildStoreFile(const Arguments& a) {
               {"peakRssMiB", peakRssMiB()}, {"clampedSamples", report.clampedSamples},
               {"sampleFormat", report.sampleFormat == volume::SampleFormat::UInt16 ? "uint16" : "float32"},
               {"warnings", allWarnings(info, scan, index)}};
-    std::cout << j.dump(2) << "\n";
+    std::cout << j.dump(2, ' ', false, json::error_handler_t::replace) << "\n";
   } else {
     fmt::print("wrote {}: {} x {} x {} voxels, {} bricks in {} levels ({:.1f}% constant), "
                "{:.1f} MiB on disk\n", a.storePath, info.dims[0], info.dims[1], info.dims[2],
@@ -432,7 +432,7 @@ int exportVolume(const Arguments& a) {
       j["activeVoxels"] = vdb->activeVoxels;
       j["bytesOnDisk"] = vdb->bytesOnDisk;
     }
-    std::cout << j.dump(2) << "\n";
+    std::cout << j.dump(2, ' ', false, json::error_handler_t::replace) << "\n";
   } else {
     fmt::print("wrote {} ({} x {} x {})\n", a.exportPath, info.dims[0], info.dims[1], info.dims[2]);
     if (vdb) {
@@ -472,7 +472,7 @@ int run(Arguments a) {
     bar.finish();
     const json j = listJson(a.path, scan);
     if (a.json) {
-      std::cout << j.dump(2) << "\n";
+      std::cout << j.dump(2, ' ', false, json::error_handler_t::replace) << "\n";
     } else {
       printList(j);
     }
@@ -481,7 +481,7 @@ int run(Arguments a) {
   if (a.inspect) {
     const json j = inspectJson(a);
     if (a.json) {
-      std::cout << j.dump(2) << "\n";
+      std::cout << j.dump(2, ' ', false, json::error_handler_t::replace) << "\n";
     } else {
       printInspect(j);
     }

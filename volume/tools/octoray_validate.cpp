@@ -151,7 +151,7 @@ int main(int argc, char** argv) {
       }
     }
     if (json) {
-      fmt::print("{}\n", toJson(report).dump(2));
+      fmt::print("{}\n", toJson(report).dump(2, ' ', false, nlohmann::json::error_handler_t::replace));
     } else {
       printTable(report);
     }

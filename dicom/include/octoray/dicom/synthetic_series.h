@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "octoray/core/geometry.h"
@@ -82,6 +83,11 @@ struct SyntheticSeriesSpec {
 
   SyntheticTransferSyntax transferSyntax = SyntheticTransferSyntax::ExplicitVRLittleEndian;
   SyntheticLayout layout = SyntheticLayout::SingleFrameFiles;
+  // Display windows: every file names WindowCenter 40 / WindowWidth 400 (an enhanced object in
+  // its shared Frame VOI LUT); in an enhanced object the first `framesWithOwnWindow` frames name
+  // `ownWindow` (center, width; "LUNG") in their own per-frame Frame VOI LUT instead.
+  int framesWithOwnWindow = 0;
+  std::pair<double, double> ownWindow{-600, 1500};
 
   // Extra objects in the same study and folder.
   bool withLocalizer = false;         // one coronal CT image, ImageType ...\LOCALIZER
