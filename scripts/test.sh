@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Builds and runs the whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer
 # (optimised, with debug info: every test runs, and any memory error or undefined behaviour
-# fails it), the loader and working-set tests under ThreadSanitizer, then fuzzes the store
+# fails it; the test programs' own code, not what they exercise, is built without UBSan, as
+# tests/CMakeLists.txt says), the loader and working-set tests under ThreadSanitizer, then fuzzes the store
 # reader for 60 s and the volume-header, raw-option, transfer-function, DICOMDIR and
 # JSON-document (camera, session, script, presets) parsers for 20-25 s each.
 # Installs missing Debian packages first.
