@@ -133,9 +133,11 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
 // The display windows `ds` names, in order (PS3.3 C.11.2.1.2). They are shown as the linear
 // map from center - width / 2 to center + width / 2 (the standard's LINEAR_EXACT; its LINEAR
 // differs by half a unit). A pair that is not two finite numbers is left out, and so is a
-// width below 1 for the LINEAR function (the default) or not above 0 for LINEAR_EXACT and
-// SIGMOID (C.11.2.1.2.1, C.11.2.1.3.2); `problem` says so, where it is still empty. So does a
-// SIGMOID function, whose windows are still shown, linear. A window named twice is kept once.
+// width below 1: the LINEAR function (the default) allows none (C.11.2.1.2.1), and the viewer
+// shows windows of at least 1 unit (a drag scales with the width), so a narrower LINEAR_EXACT
+// or SIGMOID window (C.11.2.1.3.2 allows any above 0) would not be shown as named. `problem`
+// says so, where it is still empty; so does a SIGMOID function, whose windows are still shown,
+// linear. A window named twice is kept once.
 std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& problem) {
   const std::string centerText = stringValue(ds, kWindowCenter), widthText = stringValue(ds, kWindowWidth);
   if (centerText.empty() && widthText.empty()) return {};
@@ -143,7 +145,6 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
     if (problem.empty()) problem = std::move(text);
   };
   const std::string function = stringValue(ds, kVoiLutFunction);
-  const bool linear = function.empty() || function == "LINEAR";
   const auto centers = numberValues(ds, kWindowCenter);
   const auto widths = numberValues(ds, kWindowWidth);
   if (!centers || !widths) {
@@ -159,9 +160,9 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
   const std::vector<std::string> explanations = stringValues(ds, kWindowExplanation);
   std::vector<SourceWindow> windows;
   for (std::size_t i = 0; i < std::min(centers->size(), widths->size()); ++i) {
-    if (linear ? (*widths)[i] < 1 : !((*widths)[i] > 0)) {
-      say(fmt::format("WindowWidth {} is {} for the {} function: that window is left out", (*widths)[i],
-                      linear ? "below 1" : "not above 0", linear ? "LINEAR" : function));
+    if ((*widths)[i] < 1) {
+      say(fmt::format("WindowWidth {} is below 1{}: that window is left out", (*widths)[i],
+                      function.empty() || function == "LINEAR" ? "" : " (narrower than octoray shows)"));
       continue;
     }
     SourceWindow w;

@@ -509,7 +509,8 @@ class ViewerGui(unittest.TestCase):
         shutil.copy(mr, folder)
         named = pydicom.dcmread(mr, stop_before_pixels=True)
         two = vw.path("two-windows")
-        p = run([os.path.join(BIN, "octoray-sample-series"), two, "--size", "64x64x12", "--seed", "7"])
+        # Large enough that its import is still reading when a script's next step runs.
+        p = run([os.path.join(BIN, "octoray-sample-series"), two, "--size", "256x256x48", "--seed", "7"])
         self.assertEqual(p.returncode, 0, p.stderr)
         for f in os.listdir(two):
             ds = pydicom.dcmread(os.path.join(two, f))
@@ -593,12 +594,33 @@ class ViewerGui(unittest.TestCase):
             {"type": "dump-state", "path": vw.path("pending.json")},
             {"type": "wait-converged"},
             {"type": "dump-state", "path": vw.path("pending-applied.json")},
+            # A window chosen after the request replaces it.
+            {"type": "action", "name": "open", "value": two},
+            {"type": "action", "name": "wl-preset", "value": "file 2"},
+            {"type": "action", "name": "window-level", "value": [500, 50]},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("pending-replaced.json")},
+            # A number the volume does not name (the 5 mm head names one, 40 / 80): its own
+            # first window, and a message.
+            {"type": "action", "name": "open", "value": os.path.join(PHILIPS, "S21570/S2010")},
+            {"type": "action", "name": "wl-preset", "value": "file 2"},
+            {"type": "dump-state", "path": vw.path("pending-unnamed-importing.json")},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("pending-unnamed.json")},
         ], extra=["--wl", "file 2"], cache="cache-pending")
         self.assertEqual(load_json(vw.path("wl-file-2.json"))["session"]["windowLevel"],
                          {"window": 1500, "level": -600, "preset": "file 2"})
         self.assertEqual(load_json(vw.path("pending.json"))["dataset"]["state"], "importing")
         self.assertEqual(load_json(vw.path("pending-applied.json"))["session"]["windowLevel"],
                          {"window": 1500, "level": -600, "preset": "file 2"})
+        self.assertEqual(load_json(vw.path("pending-replaced.json"))["session"]["windowLevel"],
+                         {"window": 500, "level": 50, "preset": ""})
+        self.assertEqual(load_json(vw.path("pending-unnamed-importing.json"))["dataset"]["state"], "importing")
+        state = load_json(vw.path("pending-unnamed.json"))
+        self.assertEqual(state["session"]["windowLevel"],
+                         {"window": float(head_named.WindowWidth[0]), "level": float(head_named.WindowCenter[0]),
+                          "preset": "file"})
+        self.assertTrue(any('"file 2": its file names 1 window' in m for m in state["messages"]), state["messages"])
 
     # The same while a series without HU arrives from a PACS (octoray's synthetic series
     # relabelled MR): the slices in so far show with the auto window/level of those slices,

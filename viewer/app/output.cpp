@@ -41,6 +41,7 @@ void App::loadSessionFrom(const std::string& path) {
     }
     // Its window and transfer function stay too, whether the volume was open or not.
     windowLevelChosen(false);
+    if (session.wlPreset.starts_with("file")) wlUnit_ = "file";  // that volume's own window
     tfChosenForDataset_ = true;
   } catch (const Error& e) {
     messages.push_back(e.what());

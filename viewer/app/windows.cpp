@@ -100,6 +100,7 @@ void App::judgeValueUnit(double minimum) {
 void App::windowLevelChosen(bool tablePreset) {
   wlChosenForDataset_ = true;
   autoWlChosen_ = false;
+  pendingFileWindow_.clear();  // a later choice replaces one still waiting for the headers
   // Before the store is ready the unit may still be judged: "?" until onDatasetReady says.
   wlUnit_ = tablePreset ? "HU" : slicer_ ? valueUnit_ : "?";
 }
@@ -107,6 +108,7 @@ void App::windowLevelChosen(bool tablePreset) {
 void App::applyAutoWindowLevel() {
   autoWlChosen_ = true;
   wlChosenForDataset_ = false;
+  pendingFileWindow_.clear();
   session.wlPreset = "auto";
   if (!histogram_.empty()) {
     applyWindowLevelPreset(autoWindowLevel(histogram_, histLo_, histHi_));
@@ -122,6 +124,7 @@ void App::chooseWindowLevelPreset(const std::string& name) {
     return;
   }
   if (name == "file" || name.starts_with("file ")) {
+    if (!dataset_) throw Error("", fmt::format("window/level \"{}\": no volume is open", name));
     const auto it = std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(),
                                  [&](const auto& p) { return p.name == name; });
     if (it != fileWlPresets_.end()) {
@@ -129,7 +132,8 @@ void App::chooseWindowLevelPreset(const std::string& name) {
       fileWindowChosen();
     } else if (!fileWindowsFinal_) {
       pendingFileWindow_ = name;  // applied once the volume's headers say (lookAtFileWindows)
-    } else if (name != "file") {  // "file" where the volume names none changes nothing
+    } else if (name != "file" && dataset_->state() != Dataset::State::Failed) {
+      // "file" where the volume names none changes nothing; a failed volume says why itself.
       throw Error("", fmt::format("window/level \"{}\": the open volume's file names {} window{}", name,
                                   fileWlPresets_.size(), fileWlPresets_.size() == 1 ? "" : "s"));
     }
@@ -190,24 +194,37 @@ void App::lookAtFileWindows() {
     return a.name == b.name && a.window == b.window && a.level == b.level && a.source == b.source;
   };
   const bool changed = !std::equal(presets.begin(), presets.end(), fileWlPresets_.begin(), fileWlPresets_.end(), same);
+  const bool hadWindows = !fileWlPresets_.empty();  // this volume's: the list is cleared per volume
   fileWlPresets_ = std::move(presets);
+  const auto named = [&](const std::string& name) {
+    return std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(), [&](const auto& p) { return p.name == name; });
+  };
   if (!pendingFileWindow_.empty()) {
     const std::string name = pendingFileWindow_;
-    const auto it = std::find_if(fileWlPresets_.begin(), fileWlPresets_.end(),
-                                 [&](const auto& p) { return p.name == name; });
-    if (it != fileWlPresets_.end()) {
+    if (const auto it = named(name); it != fileWlPresets_.end()) {
       applyWindowLevelPreset(*it);
       fileWindowChosen();
-    } else if (fileWindowsFinal_) {
+      return;
+    }
+    if (fileWindowsFinal_) {
       pendingFileWindow_.clear();
-      if (name != "file") {
+      if (name != "file" && dataset_->state() != Dataset::State::Failed) {
         messages.push_back(fmt::format("{}: window/level \"{}\": its file names {} window{}", dataset_->path(), name,
                                        fileWlPresets_.size(), fileWlPresets_.size() == 1 ? "" : "s"));
       }
     }
-    return;
+    // Meanwhile, or instead, the volume's own first window, as without the request.
   }
-  if (!changed || fileWlPresets_.empty() || wlChosenForDataset_ || autoWlChosen_) return;
+  if (!changed) return;
+  // A volume's own window in use (automatic or chosen) follows what it names now: a series
+  // arriving from a PACS named its first file's windows, the import names most slices'.
+  if (hadWindows && wlUnit_ == "file" && session.wlPreset.starts_with("file")) {
+    if (const auto it = named(session.wlPreset); it != fileWlPresets_.end()) {
+      applyWindowLevelPreset(*it);
+      return;
+    }
+  }
+  if (fileWlPresets_.empty() || wlChosenForDataset_ || autoWlChosen_) return;
   applyWindowLevelPreset(fileWlPresets_.front());
   wlUnit_ = "file";
 }
