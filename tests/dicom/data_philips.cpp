@@ -1,7 +1,7 @@
 // Real Philips CT (dcm_qa_ct): series discovery and classification, and the geometry and
 // values of every axial series checked pixel by pixel against each file's own attributes,
 // read here independently of the scanner with gdcm::Reader. dcm2niix, where installed, is a
-// second, independent opinion on the same positions.
+// second, independent opinion on the same positions (data_philips_dcm2niix.cpp).
 
 #include <gdcmAttribute.h>
 #include <gdcmImageReader.h>
@@ -15,9 +15,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <map>
-#include <memory>
 #include <optional>
 #include <random>
 #include <set>
@@ -30,31 +27,15 @@
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/core/error.h"
+#include "philips_data.h"
 #include "test_paths.h"
 
 namespace octoray {
 namespace {
 
-namespace fs = std::filesystem;
-using dicom::DicomScan;
+using namespace philips_test;
 using dicom::DicomSeries;
 using dicom::SeriesKind;
-
-// The axial series of both sessions (data/README.md).
-struct AxialCase {
-  const char* folder;
-  int images;
-  bool tilted;
-};
-// Names the case in test listings (ctest shows GetParam() through this).
-void PrintTo(const AxialCase& c, std::ostream* os) { *os << c.folder; }
-
-constexpr AxialCase kAxialCases[] = {
-    {"S21570/S2010", 28, false},
-    {"S21570/S2020", 140, false},
-    {"S21610/S2010", 54, true},
-    {"S21610/S3010", 58, true},
-};
 
 // One slice's attributes, read straight from its file (not through the scanner).
 struct SliceAttributes {
@@ -126,128 +107,6 @@ std::vector<fs::path> imageFiles(const fs::path& folder) {
   std::sort(files.begin(), files.end());
   return files;
 }
-
-bool isUnder(const fs::path& file, const fs::path& folder) {
-  const auto f = fs::weakly_canonical(file).string();
-  const auto d = fs::weakly_canonical(folder).string() + "/";
-  return f.compare(0, d.size(), d) == 0;
-}
-
-// Indices of the series with frames in `folder`.
-std::vector<std::size_t> seriesTouching(const DicomScan& scan, const fs::path& folder) {
-  std::vector<std::size_t> found;
-  for (std::size_t s = 0; s < scan.series.size(); ++s) {
-    const auto& frames = scan.series[s].frames;
-    if (std::any_of(frames.begin(), frames.end(),
-                    [&](const auto& f) { return isUnder(f.path, folder); })) {
-      found.push_back(s);
-    }
-  }
-  return found;
-}
-
-// Index of the one series that holds exactly the frames of `folder`; fails the test otherwise.
-std::optional<std::size_t> seriesIn(const DicomScan& scan, const fs::path& folder) {
-  const auto found = seriesTouching(scan, folder);
-  EXPECT_EQ(found.size(), 1u) << found.size() << " series hold files of " << folder.string();
-  if (found.size() != 1) return std::nullopt;
-  const auto& frames = scan.series[found.front()].frames;
-  EXPECT_TRUE(std::all_of(frames.begin(), frames.end(),
-                          [&](const auto& f) { return isUnder(f.path, folder); }))
-      << "the series of " << folder.string() << " also holds files from elsewhere";
-  return found.front();
-}
-
-// A whole volume read through readSlab, for random access in checks.
-struct LoadedVolume {
-  VolumeInfo info;
-  Mat4 indexFromPatient;
-  std::vector<float> values;
-
-  float at(int64_t i, int64_t j, int64_t k) const {
-    return values[static_cast<std::size_t>((k * info.dims[1] + j) * info.dims[0] + i)];
-  }
-  // Inside the grid, up to `marginVoxels` (positions from DS strings and float32 sforms are
-  // not exact).
-  bool inside(Vec3 index, double marginVoxels = 2e-3) const {
-    for (int a = 0; a < 3; ++a) {
-      if (index[a] < -marginVoxels ||
-          index[a] > static_cast<double>(info.dims[a] - 1) + marginVoxels) {
-        return false;
-      }
-    }
-    return true;
-  }
-  // Trilinear interpolation at a continuous index inside the grid.
-  double sample(Vec3 index) const {
-    int64_t base[3];
-    double frac[3];
-    for (int a = 0; a < 3; ++a) {
-      const double x = std::clamp(index[a], 0.0, static_cast<double>(info.dims[a] - 1));
-      base[a] = std::min<int64_t>(static_cast<int64_t>(std::floor(x)), info.dims[a] - 1);
-      frac[a] = x - static_cast<double>(base[a]);
-      if (base[a] == info.dims[a] - 1) frac[a] = 0;
-    }
-    double sum = 0;
-    for (int corner = 0; corner < 8; ++corner) {
-      double w = 1;
-      int64_t c[3];
-      for (int a = 0; a < 3; ++a) {
-        const bool high = (corner >> a) & 1;
-        w *= high ? frac[a] : 1 - frac[a];
-        c[a] = base[a] + (high ? 1 : 0);
-      }
-      if (w > 0) sum += w * at(c[0], c[1], c[2]);
-    }
-    return sum;
-  }
-};
-
-LoadedVolume loadVolume(VolumeSource& source) {
-  LoadedVolume v;
-  v.info = source.info();
-  v.indexFromPatient = v.info.patientFromIndex.inverseAffine();
-  v.values.resize(static_cast<std::size_t>(v.info.sampleCount()));
-  const int64_t slab = 16;
-  for (int64_t k = 0; k < v.info.dims[2]; k += slab) {
-    const int64_t count = std::min(slab, v.info.dims[2] - k);
-    source.readSlab(k, count,
-                    std::span<float>(v.values.data() + k * v.info.sliceSamples(),
-                                     static_cast<std::size_t>(count * v.info.sliceSamples())));
-  }
-  return v;
-}
-
-// The scan of Philips/ and the volumes opened from it, shared by the tests of this file.
-class PhilipsData : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    if (fs::exists(test::philipsDir())) scan_ = std::make_unique<DicomScan>(
-        dicom::scanDicom(test::philipsDir()));
-  }
-  static void TearDownTestSuite() {
-    scan_.reset();
-    volumes_.clear();
-  }
-  void SetUp() override { OCTORAY_REQUIRE_PATH(test::philipsDir()); }
-
-  static const DicomScan& scan() { return *scan_; }
-
-  static const LoadedVolume& volume(const std::string& folder) {
-    auto it = volumes_.find(folder);
-    if (it == volumes_.end()) {
-      const auto index = seriesIn(*scan_, test::philipsDir() / folder);
-      if (!index) throw Error(folder, "test: no series found");
-      auto source = dicom::openDicomSeries(scan_->series[*index]);
-      it = volumes_.emplace(folder, loadVolume(*source)).first;
-    }
-    return it->second;
-  }
-
- private:
-  static inline std::unique_ptr<DicomScan> scan_;
-  static inline std::map<std::string, LoadedVolume> volumes_;
-};
 
 TEST_F(PhilipsData, ScanFindsTheAxialSeriesOfBothSessions) {
   for (const AxialCase& c : kAxialCases) {
@@ -567,8 +426,6 @@ SliceCheck checkSlicesAgainstAttributes(const LoadedVolume& volume,
   return result;
 }
 
-class PhilipsAxial : public PhilipsData, public ::testing::WithParamInterface<AxialCase> {};
-
 TEST_P(PhilipsAxial, EveryOriginalSliceLandsOnTheGridWithItsHounsfieldUnits) {
   const AxialCase& c = GetParam();
   const LoadedVolume& volume = PhilipsData::volume(c.folder);
@@ -696,173 +553,6 @@ TEST_F(PhilipsData, StackWithAMissingSliceIsResampledLinearly) {
   }
   std::cout << fmt::format("interpolated slice vs the removed original: RMS {:.1f} HU\n",
                            std::sqrt(sumSquares / (a.rows * a.columns)));
-}
-
-// ---- dcm2niix cross-check ------------------------------------------------------------------
-
-// A NIfTI-1 file read here in a few lines (not through our reader or VTK, whose qfac
-// handling would be one more thing to trust): dims, sform and scaled values.
-struct Nifti {
-  std::array<int64_t, 3> dims{};
-  double srow[3][4]{};
-  std::vector<double> values;
-  double at(int64_t i, int64_t j, int64_t k) const {
-    return values[static_cast<std::size_t>((k * dims[1] + j) * dims[0] + i)];
-  }
-};
-
-std::optional<Nifti> readNifti(const fs::path& path, std::string& why) {
-  std::ifstream in(path, std::ios::binary);
-  char header[348];
-  if (!in.read(header, sizeof header)) {
-    why = "short header";
-    return std::nullopt;
-  }
-  auto get = [&](auto& value, std::size_t offset) {
-    std::memcpy(&value, header + offset, sizeof value);
-  };
-  int32_t size;
-  get(size, 0);
-  int16_t dim[8], datatype, sformCode;
-  float voxOffset, slope, inter, srow[12];
-  get(dim, 40);
-  get(datatype, 70);
-  get(voxOffset, 108);
-  get(slope, 112);
-  get(inter, 116);
-  get(sformCode, 254);
-  get(srow, 280);
-  if (size != 348 || dim[0] < 3 || (dim[0] > 3 && dim[4] > 1)) {
-    why = "not a little-endian 3D NIfTI-1";
-    return std::nullopt;
-  }
-  if (sformCode <= 0) {
-    why = "no sform";
-    return std::nullopt;
-  }
-  Nifti n;
-  n.dims = {dim[1], dim[2], dim[3]};
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 4; ++c) n.srow[r][c] = srow[4 * r + c];
-  }
-  const std::size_t count = static_cast<std::size_t>(n.dims[0] * n.dims[1] * n.dims[2]);
-  const double scale = slope == 0 ? 1.0 : slope;
-  const double offset = slope == 0 ? 0.0 : inter;
-  in.seekg(static_cast<std::streamoff>(voxOffset));
-  auto readAll = [&](auto sample) {
-    std::vector<decltype(sample)> raw(count);
-    if (!in.read(reinterpret_cast<char*>(raw.data()),
-                 static_cast<std::streamsize>(count * sizeof sample))) {
-      return false;
-    }
-    n.values.resize(count);
-    for (std::size_t i = 0; i < count; ++i) n.values[i] = scale * raw[i] + offset;
-    return true;
-  };
-  bool ok = false;
-  switch (datatype) {
-    case 2: ok = readAll(uint8_t{}); break;
-    case 4: ok = readAll(int16_t{}); break;
-    case 8: ok = readAll(int32_t{}); break;
-    case 16: ok = readAll(float{}); break;
-    case 512: ok = readAll(uint16_t{}); break;
-    default: why = fmt::format("datatype {} not handled by the test", datatype); return std::nullopt;
-  }
-  if (!ok) {
-    why = "truncated voxel data";
-    return std::nullopt;
-  }
-  return n;
-}
-
-TEST_P(PhilipsAxial, AgreesWithDcm2niixWhereDcm2niixAgreesWithTheAttributes) {
-  const AxialCase& c = GetParam();
-  if (std::system("dcm2niix -h > /dev/null 2>&1") != 0) {
-    GTEST_SKIP() << "skipped: dcm2niix is not installed (Debian package dcm2niix)";
-  }
-  const fs::path out = test::freshTempDir("dcm2niix");
-  const std::string command = fmt::format("dcm2niix -z n -f %s -o '{}' '{}' > '{}' 2>&1",
-                                          out.string(), (test::philipsDir() / c.folder).string(),
-                                          (out / "dcm2niix.log").string());
-  ASSERT_EQ(std::system(command.c_str()), 0) << command;
-  const LoadedVolume& volume = PhilipsData::volume(c.folder);
-
-  int filesCompared = 0;
-  bool exactFileFound = false;
-  for (const auto& entry : fs::directory_iterator(out)) {
-    if (entry.path().extension() != ".nii") continue;
-    std::string why;
-    const auto nifti = readNifti(entry.path(), why);
-    if (!nifti) {
-      ADD_FAILURE() << entry.path().string() << ": " << why;
-      continue;
-    }
-    ++filesCompared;
-    // Random voxel centres of dcm2niix's grid, RAS -> LPS, into our index space.
-    std::mt19937 rng(7);
-    std::uniform_int_distribution<int64_t> di(0, nifti->dims[0] - 1), dj(0, nifti->dims[1] - 1),
-        dk(0, nifti->dims[2] - 1);
-    int inside = 0, onOurGrid = 0, equal = 0, withinOne = 0;
-    double maxDifference = 0;
-    const int samples = 20000;
-    for (int s = 0; s < samples; ++s) {
-      const int64_t i = di(rng), j = dj(rng), k = dk(rng);
-      double ras[3];
-      for (int r = 0; r < 3; ++r) {
-        ras[r] = nifti->srow[r][0] * i + nifti->srow[r][1] * j + nifti->srow[r][2] * k +
-                 nifti->srow[r][3];
-      }
-      const Vec3 index = volume.indexFromPatient.transformPoint({-ras[0], -ras[1], ras[2]});
-      if (!volume.inside(index)) continue;
-      ++inside;
-      // sform is float32: positions carry ~1e-5 relative error, so allow 2e-3 voxel.
-      const bool integral = std::abs(index.x - std::round(index.x)) < 2e-3 &&
-                            std::abs(index.y - std::round(index.y)) < 2e-3 &&
-                            std::abs(index.z - std::round(index.z)) < 2e-3;
-      const double ours = integral ? volume.at(std::llround(index.x), std::llround(index.y),
-                                               std::llround(index.z))
-                                   : volume.sample(index);
-      const double difference = std::abs(ours - nifti->at(i, j, k));
-      onOurGrid += integral;
-      equal += difference == 0;
-      withinOne += difference <= 1.0;
-      maxDifference = std::max(maxDifference, difference);
-    }
-    const double agreement = inside ? static_cast<double>(withinOne) / inside : 0;
-    std::cout << fmt::format("[{}] dcm2niix {}: {} of {} samples inside our grid, {} on our "
-                             "voxel centres, {} equal, {:.2f}% within 1 HU, max difference {} "
-                             "HU\n", c.folder, entry.path().filename().string(), inside,
-                             samples, onOurGrid, equal, 100 * agreement, maxDifference);
-    if (!c.tilted) {
-      // Untilted, evenly spaced: same grid (up to axis flips), same values, exactly.
-      EXPECT_EQ(inside, samples) << entry.path().filename();
-      EXPECT_EQ(onOurGrid, inside) << entry.path().filename();
-      EXPECT_EQ(equal, inside) << entry.path().filename() << ": max difference "
-                               << maxDifference << " HU";
-      exactFileFound = true;
-    } else if (agreement < 0.99) {
-      // Our volume was checked against the DICOM attributes pixel by pixel above; where
-      // dcm2niix puts different values at the same patient positions, the attributes decide.
-      std::cout << fmt::format("[{}] dcm2niix {} disagrees with the DICOM attributes (its "
-                               "geometry or tilt correction differs from ImagePositionPatient/"
-                               "ImageOrientationPatient); the attributes decide, and our "
-                               "volume agrees with them\n",
-                               c.folder, entry.path().filename().string());
-    }
-  }
-  // dcm2niix's own account of the tilt. Debian's v1.0.20220720 logs opposite signs for
-  // 0018,1120 and its estimate from the slice positions on both tilted series; its corrected
-  // S21610/S2010 agrees with the attributes, its S21610/S3010 outputs do not.
-  std::ifstream log(out / "dcm2niix.log");
-  for (std::string line; std::getline(log, line);) {
-    if (line.find("Tilt") != std::string::npos || line.find("tilt") != std::string::npos) {
-      std::cout << "[" << c.folder << "] dcm2niix says: " << line << "\n";
-    }
-  }
-  EXPECT_GT(filesCompared, 0) << "dcm2niix wrote no NIfTI; see " << (out / "dcm2niix.log");
-  if (!c.tilted) {
-    EXPECT_TRUE(exactFileFound);
-  }
 }
 
 }  // namespace
