@@ -138,6 +138,25 @@ class ViewerGui(unittest.TestCase):
         if not os.environ.get("OCTORAY_KEEP_TEST_OUTPUT"):
             shutil.rmtree(cls.tmp, ignore_errors=True)
 
+    def pydicom_test_file(self, name):
+        """The path of one of pydicom's test files; skips the test where it is absent."""
+        import pydicom
+        path = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", name)
+        if not os.path.isfile(path):
+            self.skipTest(f"{path} is absent (Debian's python3-pydicom installs it)")
+        return path
+
+    def head_5mm_nifti(self):
+        """The 5 mm Philips head exported to NIfTI by octoray-import (a CT file that does not
+        say its values are HU), made once for the tests that open it."""
+        cls = type(self)
+        if getattr(cls, "_head_5mm_nifti", None) is None:
+            nifti = os.path.join(cls.tmp, "head-5mm.nii.gz")
+            p = run([os.path.join(BIN, "octoray-import"), "--export", nifti, os.path.join(PHILIPS, "S21570/S2010")])
+            self.assertEqual(p.returncode, 0, p.stderr)
+            cls._head_5mm_nifti = nifti
+        return cls._head_5mm_nifti
+
     def viewer(self, name):
         d = os.path.join(self.tmp, name)
         os.makedirs(d, exist_ok=True)
@@ -409,9 +428,7 @@ class ViewerGui(unittest.TestCase):
     # window the script sets before the volume is ready is kept.
     def test_volume_without_hounsfield_units_opens_with_auto_window(self):
         import pydicom
-        mr = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", "MR_small.dcm")
-        if not os.path.isfile(mr):
-            self.skipTest(f"{mr} is absent (Debian's python3-pydicom installs it)")
+        mr = self.pydicom_test_file("MR_small.dcm")
         vw = self.viewer("mr")
         folder = vw.path("mr-series")
         os.makedirs(folder, exist_ok=True)
@@ -475,9 +492,7 @@ class ViewerGui(unittest.TestCase):
         ])
         mr_brain = load_json(vw.path("mr-brain.json"))["session"]["windowLevel"]
         self.assertEqual((mr_brain["window"], mr_brain["level"], mr_brain["preset"]), (80, 40, "brain"))
-        nifti = vw.path("head-5mm.nii.gz")
-        p = run([os.path.join(BIN, "octoray-import"), "--export", nifti, os.path.join(PHILIPS, "S21570/S2010")])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        nifti = self.head_5mm_nifti()
         vw.run(folder, [
             {"type": "wait-converged"},
             {"type": "action", "name": "open", "value": nifti},
@@ -500,9 +515,7 @@ class ViewerGui(unittest.TestCase):
     # first preset (brain) instead of that window.
     def test_volume_opens_with_the_window_its_file_names(self):
         import pydicom
-        mr = os.path.join(os.path.dirname(pydicom.__file__), "data", "test_files", "MR_small.dcm")
-        if not os.path.isfile(mr):
-            self.skipTest(f"{mr} is absent (Debian's python3-pydicom installs it)")
+        mr = self.pydicom_test_file("MR_small.dcm")
         vw = self.viewer("file-window")
         folder = vw.path("mr-series")
         os.makedirs(folder, exist_ok=True)
@@ -517,9 +530,7 @@ class ViewerGui(unittest.TestCase):
             ds.WindowCenter, ds.WindowWidth = [40, -600], [400, 1500]
             ds.WindowCenterWidthExplanation = ["SOFT TISSUE", "LUNG"]
             ds.save_as(os.path.join(two, f))
-        nifti = vw.path("head-5mm.nii.gz")
-        p = run([os.path.join(BIN, "octoray-import"), "--export", nifti, os.path.join(PHILIPS, "S21570/S2010")])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        nifti = self.head_5mm_nifti()
         head_named = pydicom.dcmread(os.path.join(HEAD, sorted(n for n in os.listdir(HEAD) if n != "DIRFILE")[0]),
                                      stop_before_pixels=True)
         vw.run(folder, [
