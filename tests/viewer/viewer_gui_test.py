@@ -96,6 +96,12 @@ def rotation_about(axis, degrees):
     return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * (k @ k)
 
 
+def open_then(path, step):
+    """Script steps: open `path`, wait until every view is complete, then `step` (a dump or a
+    screenshot)."""
+    return [{"type": "action", "name": "open", "value": path}, {"type": "wait-converged"}, step]
+
+
 def write_credentials(vw, secret):
     """The viewer's credentials file for the test PACS (owner-only, as the viewer requires)."""
     creds = vw.path("pacs.cred")
@@ -446,9 +452,7 @@ class ViewerGui(unittest.TestCase):
             {"type": "dump-state", "path": vw.path("brain.json")},
             {"type": "key", "key": "0"},
             {"type": "dump-state", "path": vw.path("auto.json")},
-            {"type": "action", "name": "open", "value": self.head_store},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("ct-after-chosen-auto.json")},
+            *open_then(self.head_store, {"type": "dump-state", "path": vw.path("ct-after-chosen-auto.json")}),
         ]
         vw.run(folder, steps)
         state = load_json(vw.path("opened.png.json"))
@@ -495,9 +499,7 @@ class ViewerGui(unittest.TestCase):
         nifti = self.head_5mm_nifti()
         vw.run(folder, [
             {"type": "wait-converged"},
-            {"type": "action", "name": "open", "value": nifti},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("ct-after-auto-mr.json")},
+            *open_then(nifti, {"type": "dump-state", "path": vw.path("ct-after-auto-mr.json")}),
         ])
         state = load_json(vw.path("ct-after-auto-mr.json"))
         self.assertEqual(state["dataset"]["unit"], "HU")
@@ -505,6 +507,79 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual((ct["windowLevel"]["window"], ct["windowLevel"]["level"], ct["windowLevel"]["preset"]),
                          (80, 40, "brain"))
         self.assertEqual(ct["preset"], "bone")
+
+    # A volume without Hounsfield units opens its isosurface at Otsu's threshold of its values
+    # (presets.h), not at the CT's 300 HU, which lies outside such values and shows nothing:
+    # here the 5 mm head as float values in [0, 1], an MHD file that names no unit. The
+    # isovalue is numpy's Otsu threshold of the level the viewer reads, the surface is the
+    # head's skin, and the 3D view equals octoray-render at that isovalue. A CT opened next gets 300 HU; an
+    # isovalue chosen for a CT stays for the next CT, not for the next volume without HU.
+    def test_isosurface_of_a_volume_without_hounsfield_units_opens_at_otsus_threshold(self):
+        vw = self.viewer("iso-no-hu")
+        head = DicomVolume(os.path.join(PHILIPS, "S21570/S2010"))
+        values = ((head.values + 1024) / 4096).astype("<f4")  # [k, j, i]: x fastest, as MHD
+        values.tofile(vw.path("head.raw"))
+        spacing = np.linalg.norm(head.affine[:3, :3], axis=0)
+        direction = head.affine[:3, :3] / spacing
+        mhd = vw.path("head.mhd")
+        with open(mhd, "w") as f:
+            f.write("ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+                    f"DimSize = {values.shape[2]} {values.shape[1]} {values.shape[0]}\n"
+                    f"ElementSpacing = {spacing[0]!r} {spacing[1]!r} {spacing[2]!r}\n"
+                    f"Offset = {head.affine[0, 3]!r} {head.affine[1, 3]!r} {head.affine[2, 3]!r}\n"
+                    # MetaIO writes the direction matrix row by row.
+                    f"TransformMatrix = {' '.join(repr(v) for v in direction.ravel())}\n"
+                    "ElementType = MET_FLOAT\nElementDataFile = head.raw\n")
+        vw.run(mhd, [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "action", "name": "mode", "value": "iso"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("iso.png")},
+            *open_then(self.head_store, {"type": "dump-state", "path": vw.path("ct.json")}),
+            {"type": "action", "name": "iso", "value": 500},
+            *open_then(self.tilted_store, {"type": "dump-state", "path": vw.path("ct-after-chosen.json")}),
+            *open_then(mhd, {"type": "dump-state", "path": vw.path("mhd-again.json")}),
+        ])
+        state = load_json(vw.path("iso.png.json"))
+        self.assertEqual(state["dataset"]["unit"], "")
+        iso = state["session"]["isoValue"]
+        # Otsu's threshold over 256 bins of [lo, hi]: the split after bin t that maximises the
+        # between-class variance w0 w1 (m0 - m1)^2. The viewer's histogram is of the finest
+        # level of at most 4 Mi samples, here the second (256 x 256 x 14), whose samples are
+        # means of 2 x 2 x 2 of the file's: computed here from the file, within two bins.
+        lo, hi = float(values.min()), float(values.max())
+        counts, _ = np.histogram(values.reshape(14, 2, 256, 2, 256, 2).mean(axis=(1, 3, 5)), bins=256, range=(lo, hi))
+        bins = np.arange(256)
+        w0 = np.cumsum(counts)[:-1].astype(float)
+        w1 = counts.sum() - w0
+        s0 = np.cumsum(counts * bins)[:-1].astype(float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            between = np.where((w0 > 0) & (w1 > 0), w0 * w1 * (s0 / w0 - (np.dot(counts, bins) - s0) / w1) ** 2, 0)
+        otsu = lo + (int(np.argmax(between)) + 1) * (hi - lo) / 256
+        self.assertLess(abs(iso - otsu), 2 * (hi - lo) / 256, f"isovalue {iso} vs Otsu {otsu} over [{lo}, {hi}]")
+        # Between air and soft tissue, as the skin is.
+        self.assertGreater(iso, (-900 + 1024) / 4096)
+        self.assertLess(iso, (-100 + 1024) / 4096)
+        camera = state["views"]["3d"]["camera"]
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        ref = vw.path("render.png")
+        p = run([os.path.join(BIN, "octoray-render"), state["dataset"]["store"], "--mode", "iso", "--iso", repr(iso),
+                 "--camera", vw.path("camera.json"), "--size", f"{camera['width']}x{camera['height']}", "-o", ref])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        got, want = load_png(vw.path("iso.png")), load_png(ref)
+        self.assertEqual(got.shape, want.shape)
+        # The head's surface covers a good part of the view (the background is uniform).
+        background = got[0, 0].astype(int)
+        covered = float(np.mean(np.any(np.abs(got.astype(int) - background) > 8, axis=2)))
+        self.assertGreater(covered, 0.15, "the isosurface is (nearly) empty")
+        value = psnr(got, want)
+        self.assertGreaterEqual(value, 40.0, f"3D isosurface vs octoray-render: PSNR {value:.1f} dB")
+        ct = load_json(vw.path("ct.json"))
+        self.assertEqual(ct["dataset"]["unit"], "HU")
+        self.assertEqual(ct["session"]["isoValue"], 300)
+        self.assertEqual(load_json(vw.path("ct-after-chosen.json"))["session"]["isoValue"], 500)
+        self.assertEqual(load_json(vw.path("mhd-again.json"))["session"]["isoValue"], iso)
 
     # A series whose files name a window opens with it, as Horos, Weasis, OHIF and Slicer open
     # one: pydicom's MR slice (WindowCenter 600, WindowWidth 1600) and the 1 mm Philips head
@@ -539,23 +614,13 @@ class ViewerGui(unittest.TestCase):
             {"type": "screenshot", "path": vw.path("mr.png")},
             {"type": "key", "key": "0"},
             {"type": "dump-state", "path": vw.path("mr-auto.json")},
-            {"type": "action", "name": "open", "value": self.head_store},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("head.json")},
-            {"type": "action", "name": "open", "value": two},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("two.json")},
+            *open_then(self.head_store, {"type": "dump-state", "path": vw.path("head.json")}),
+            *open_then(two, {"type": "dump-state", "path": vw.path("two.json")}),
             {"type": "action", "name": "wl-preset", "value": "file 2"},
             {"type": "screenshot", "path": vw.path("two-lung.png")},
-            {"type": "action", "name": "open", "value": nifti},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("nifti-after-chosen.json")},
-            {"type": "action", "name": "open", "value": self.head_store},
-            {"type": "wait-converged"},
-            {"type": "screenshot", "path": vw.path("head-own.png")},
-            {"type": "action", "name": "open", "value": nifti},
-            {"type": "wait-converged"},
-            {"type": "dump-state", "path": vw.path("nifti.json")},
+            *open_then(nifti, {"type": "dump-state", "path": vw.path("nifti-after-chosen.json")}),
+            *open_then(self.head_store, {"type": "screenshot", "path": vw.path("head-own.png")}),
+            *open_then(nifti, {"type": "dump-state", "path": vw.path("nifti.json")}),
         ])
         state = load_json(vw.path("mr.png.json"))
         self.assertEqual(state["dataset"]["unit"], "")

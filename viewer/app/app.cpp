@@ -247,7 +247,7 @@ void App::resetForDataset(const std::string& source) {
   session.measurements.clear();
   valueUnit_.clear();
   sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
-  wlChosenForDataset_ = tfChosenForDataset_ = false;
+  wlChosenForDataset_ = tfChosenForDataset_ = isoChosenForDataset_ = false;
   fileWlPresets_.clear();
   fileWindowsFinal_ = false;
   pendingFileWindow_.clear();
@@ -315,7 +315,9 @@ void App::onDatasetReady() {
   // The store's histogram replaces the preview's auto window; a volume without HU gets the
   // grey ramp for its values in 3D (as octoray-render's default), a CT after one the CT default.
   if (wlUnit_ == "?") wlUnit_ = valueUnit_;
+  if (isoUnit_ == "?") isoUnit_ = valueUnit_;
   applyAutomaticWindowLevel(histogram_, histLo_, histHi_);
+  applyAutomaticIsoValue();
   if (valueUnit_ != "HU" || session.preset.starts_with("default-")) applyDefaultTransferFunction();
   // A fresh dataset starts centred; a session's own crosshair and camera are kept.
   if (!sessionLoaded_) {

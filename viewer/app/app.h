@@ -223,6 +223,9 @@ class App {
   // The reader set a window (a preset, a drag, the panel, a script, --wl, a session): no
   // automatic one replaces it for this volume. `tablePreset`: one of the table's CT windows.
   void windowLevelChosen(bool tablePreset = false);
+  // The reader set the isovalue (the panel, a script, a session): no automatic one replaces it
+  // for this volume.
+  void isoValueChosen();
   // The 3D mode changed: a generated default transfer function follows it.
   void modeChanged();
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
@@ -340,6 +343,14 @@ class App {
   bool wlChosenForDataset_ = false;  // the reader set a window for this volume
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
+  bool isoChosenForDataset_ = false;  // the reader set the isovalue for this volume
+  // The unit of the values the isovalue was set for ("HU": a CT's, kept for the next CT as a
+  // table window is; "auto": automaticIsoValue of the volume open; "?": chosen before the
+  // volume's unit was known). A CT opened after any other gets kDefaultCtIsoValueHu.
+  std::string isoUnit_ = "HU";
+  // The isovalue the volume opens with, unless the reader chose one: a CT keeps a CT's, else
+  // transfer::kDefaultCtIsoValueHu; a volume without HU gets automaticIsoValue of its histogram.
+  void applyAutomaticIsoValue();
   // The unit of the values the current window was set for ("HU": a CT window; "?": set before
   // the volume's unit was known; "file": a volume's own window, applied or chosen for it). A CT opened
   // after a window set for other values, or after another volume's own, gets the table's first

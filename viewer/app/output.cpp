@@ -43,6 +43,7 @@ void App::loadSessionFrom(const std::string& path) {
     windowLevelChosen(false);
     if (session.wlPreset.starts_with("file")) wlUnit_ = "file";  // that volume's own window
     tfChosenForDataset_ = true;
+    isoValueChosen();
   } catch (const Error& e) {
     messages.push_back(e.what());
   }

@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "app.h"
+#include "util.h"
 
 namespace octoray::viewer {
 namespace {
@@ -94,7 +95,7 @@ void App::drawViews() {
       if (overlays) {
         outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
         std::string line = fmt::format("{}  {}", modeName(session.mode), session.preset);
-        if (session.mode == gpu::RaycastMode::Iso) line = fmt::format("iso {:.0f}{}", session.isoValue, unitSuffix(valueUnit_));
+        if (session.mode == gpu::RaycastMode::Iso) line = fmt::format("iso {:.{}f}{}", session.isoValue, valueDecimals(histHi_ - histLo_), unitSuffix(valueUnit_));
         std::transform(line.begin(), line.begin() + 3, line.begin(), ::toupper);
         outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 8 + fs), text, line);
         if (view3d_) {

@@ -9,6 +9,7 @@
 #include <filesystem>
 
 #include "app.h"
+#include "util.h"
 #include "octoray/core/error.h"
 
 namespace octoray::viewer {
@@ -227,8 +228,10 @@ void App::drawPanels() {
     }
     float iso = static_cast<float>(session.isoValue);
     const std::string isoLabel = valueUnit_.empty() ? "isovalue###iso" : "isovalue (" + valueUnit_ + ")###iso";
-    if (ImGui::SliderFloat(isoLabel.c_str(), &iso, static_cast<float>(histLo_), static_cast<float>(histHi_), "%.0f")) {
+    const std::string isoFormat = fmt::format("%.{}f", valueDecimals(histHi_ - histLo_));
+    if (ImGui::SliderFloat(isoLabel.c_str(), &iso, static_cast<float>(histLo_), static_cast<float>(histHi_), isoFormat.c_str())) {
       session.isoValue = iso;
+      isoValueChosen();
       markInteraction();
     }
     float lod = static_cast<float>(session.lodPixels);

@@ -172,7 +172,10 @@ void App::action(const std::string& name, const nlohmann::json& value) {
     session.mode = parseModeName(text());
     modeChanged();
   }
-  else if (name == "iso") session.isoValue = number();
+  else if (name == "iso") {
+    session.isoValue = number();
+    isoValueChosen();
+  }
   else if (name == "lod-pixels") session.lodPixels = number();
   else if (name == "step-factor") session.stepFactor = number();
   else if (name == "slab") session.slab = parseSlabMode(text());

@@ -20,11 +20,15 @@ void App::computeHistogram() {
   const volume::StoreReader* store = dataset_ ? dataset_->store() : nullptr;
   if (!store) return;
   const auto& layout = store->layout();
-  int level = 0;
-  while (level < layout.leafLevel()) {
+  // The finest level of at most 4 Mi samples (the whole volume where it is that small): its
+  // bricks are read once, here, when the store is ready. The 1 mm head (512 x 512 x 140) is
+  // read at 128 x 128 x 35, the 5 mm one (512 x 512 x 28) at 256 x 256 x 14.
+  constexpr int64_t kMaxSamples = int64_t{1} << 22;
+  int level = layout.leafLevel();
+  while (level > 0) {
     const auto& d = layout.levelDims(level);
-    if (std::max({d[0], d[1], d[2]}) >= 96) break;
-    ++level;
+    if (d[0] * d[1] * d[2] <= kMaxSamples) break;
+    --level;
   }
   histLo_ = store->node(0).minValue;
   histHi_ = std::max(histLo_ + 1, static_cast<double>(store->node(0).maxValue));
@@ -73,6 +77,23 @@ void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, d
     applyWindowLevelPreset(wlPresets.front());  // a CT after a window for other values
     wlUnit_ = "HU";
   }
+}
+
+void App::applyAutomaticIsoValue() {
+  if (isoChosenForDataset_ || histogram_.empty()) return;
+  if (valueUnit_ != "HU") {
+    session.isoValue = automaticIsoValue(histogram_, histLo_, histHi_);
+    isoUnit_ = "auto";
+  } else if (isoUnit_ != "HU") {
+    session.isoValue = transfer::kDefaultCtIsoValueHu;  // a CT after an isovalue for other values
+    isoUnit_ = "HU";
+  }
+}
+
+void App::isoValueChosen() {
+  isoChosenForDataset_ = true;
+  // Before the store is ready the unit may still be judged: "?" until onDatasetReady says.
+  isoUnit_ = slicer_ ? valueUnit_ : "?";
 }
 
 void App::applyDefaultTransferFunction() {

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <fstream>
+#include <optional>
 #include <set>
 
 #include "octoray/core/error.h"
@@ -116,6 +117,33 @@ WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, 
   p.window = std::max(high - low, binWidth);
   p.level = 0.5 * (low + high);
   return p;
+}
+
+double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi) {
+  const std::size_t bins = histogram.size();
+  double total = 0, weighted = 0;
+  for (std::size_t b = 0; b < bins; ++b) {
+    total += histogram[b];
+    weighted += static_cast<double>(b) * histogram[b];
+  }
+  // Maximise the between-class variance w0 w1 (m0 - m1)^2 over the split after bin t, in bin
+  // units; the first maximum wins, as OpenCV's THRESH_OTSU.
+  double below = 0, belowWeighted = 0, best = 0;
+  std::optional<std::size_t> split;
+  for (std::size_t t = 0; t + 1 < bins; ++t) {
+    below += histogram[t];
+    belowWeighted += static_cast<double>(t) * histogram[t];
+    const double above = total - below;
+    if (below == 0 || above == 0) continue;
+    const double difference = belowWeighted / below - (weighted - belowWeighted) / above;
+    const double between = below * above * difference * difference;
+    if (between > best) {
+      best = between;
+      split = t;
+    }
+  }
+  if (!split) return 0.5 * (lo + hi);
+  return lo + static_cast<double>(*split + 1) * (hi - lo) / static_cast<double>(bins);
 }
 
 std::vector<WindowLevelPreset> fileWindowLevelPresets(const std::vector<SourceWindow>& windows) {

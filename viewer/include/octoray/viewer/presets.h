@@ -32,6 +32,16 @@ std::filesystem::path defaultWindowLevelPresetsPath();
 // it is: this is what a volume without Hounsfield units (MR, or a file without units) opens with.
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi);
 
+// The isovalue a volume without Hounsfield units (MR, a file without units) opens with: Otsu's
+// threshold of its values (N. Otsu, IEEE Trans. SMC 9(1), 1979; the automatic threshold of
+// Slicer's Segment Editor and ITK-SNAP), the value that best splits them into two classes, so
+// the surface is the boundary of the object against its background. `histogram` counts the
+// values in equal bins over [lo, hi]; the threshold is the upper edge of the last bin of the
+// lower class (the classes are bins 0..t and t+1..). An empty histogram, or one with a single
+// occupied bin, gives the middle of the range. A CT's isosurface opens at
+// transfer::kDefaultCtIsoValueHu instead.
+double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi);
+
 // The windows a volume's file names (DICOM's WindowCenter / WindowWidth, VolumeInfo::windows),
 // as presets named "file", "file 2", ... in the file's order, their source its explanation
 // ("BRAIN") or where they come from. A volume that names one opens with the first, as Horos,

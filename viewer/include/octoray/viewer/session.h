@@ -84,7 +84,7 @@ struct Session {
   std::string preset = "bone";         // name of the preset `tf` started from
   transfer::TransferFunction tf;       // as edited
   gpu::RaycastMode mode = gpu::RaycastMode::Dvr;
-  double isoValue = 300;               // HU
+  double isoValue = 300;               // in the volume's unit: 300 HU for a CT (App opens others at theirs)
   double lodPixels = 1.0;              // working-set refinement target (pixels per voxel)
   double stepFactor = 1.0;             // x the renderer's default step
   double earlyTermination = 0.99;
