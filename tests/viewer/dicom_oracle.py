@@ -82,6 +82,17 @@ class DicomVolume:
         return self.sample(pts.reshape(-1, 3)).reshape(h, w)
 
 
+def window_grey_exact(values, window, level):
+    """DICOM PS3.3 C.11.2.1.3.2 LINEAR_EXACT VOI LUT to 0..255 (any window above 0), rounded
+    half up; NaN to 0."""
+    c, w = float(level), float(window)
+    g = np.floor(((values - c) / w + 0.5) * 255.0 + 0.5)
+    g = np.where(values <= c - w / 2, 0, g)
+    g = np.where(values > c + w / 2, 255, g)
+    g = np.where(np.isnan(values), 0, g)
+    return np.clip(g, 0, 255).astype(np.uint8)
+
+
 def window_grey(values, window, level):
     """DICOM PS3.3 C.11.2.1.2.1 linear VOI LUT to 0..255, rounded half up; NaN to 0."""
     c, w = float(level), max(1.0, float(window))

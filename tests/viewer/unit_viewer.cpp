@@ -124,6 +124,26 @@ TEST(ViewerMpr, WindowGreyIsDicomLinearVoi) {
   EXPECT_EQ(windowGrey(40.0, wl), 129);  // ((40 - 39.5) / 79 + 0.5) * 255 = 129.1
   EXPECT_EQ(windowGrey(std::nan(""), wl), 0);
   EXPECT_LT(windowGrey(20.0, wl), windowGrey(60.0, wl));
+  // LINEAR takes a window below 1 as 1: a step at level - 0.5, so every value of [0.1, 0.5]
+  // is white.
+  EXPECT_EQ(windowGrey(-0.3, WindowLevel{0.4, 0.3}), 0);
+  EXPECT_EQ(windowGrey(0.1, WindowLevel{0.4, 0.3}), 255);
+}
+
+// LINEAR_EXACT (PS3.3 C.11.2.1.3.2): level +- window / 2 mapped linearly, for any window above
+// 0; what a volume whose values are not integers is shown with.
+TEST(ViewerMpr, WindowGreyLinearExactTakesAnyPositiveWindow) {
+  const WindowLevel wl{0.4, 0.3};  // [0.1, 0.5]
+  const VoiFunction exact = VoiFunction::LinearExact;
+  EXPECT_EQ(windowGrey(0.1, wl, exact), 0);
+  EXPECT_EQ(windowGrey(0.5, wl, exact), 255);
+  EXPECT_EQ(windowGrey(0.7, wl, exact), 255);
+  EXPECT_EQ(windowGrey(0.3, wl, exact), 128);  // (0 / 0.4 + 0.5) * 255 = 127.5, half up
+  EXPECT_EQ(windowGrey(0.2, wl, exact), 64);   // (-0.1 / 0.4 + 0.5) * 255 = 63.75
+  EXPECT_EQ(windowGrey(std::nan(""), wl, exact), 0);
+  // CT's window, exact: 40 +- 40 HU.
+  EXPECT_EQ(windowGrey(0.0, WindowLevel{80, 40}, exact), 0);
+  EXPECT_EQ(windowGrey(60.0, WindowLevel{80, 40}, exact), 191);  // 0.75 * 255 = 191.25
 }
 
 TEST(ViewerMpr, SlicesOfALinearVolumeAreExactAndNeverBlankWhileLoading) {
@@ -495,6 +515,9 @@ TEST(ViewerMeasure, RoiStatisticsNameTheVolumesUnitOrNone) {
   const RoiStats st = roiStats(r, {30, 40, 50});
   EXPECT_EQ(describe(r, &st, "HU"), "mean 40.0 SD 8.2 HU, min 30 max 50, 50.0 mm\u00b2");
   EXPECT_EQ(describe(r, &st, ""), "mean 40.0 SD 8.2, min 30 max 50, 50.0 mm\u00b2");
+  // Values that are not integers (here in [0, 1]) keep the decimals they need.
+  const RoiStats fractions = roiStats(r, {0.125, 0.25, 0.5});
+  EXPECT_EQ(describe(r, &fractions, "", 3), "mean 0.2917 SD 0.1559, min 0.125 max 0.500, 50.0 mm\u00b2");
   EXPECT_EQ(unitSuffix("HU"), " HU");
   EXPECT_EQ(unitSuffix(""), "");
 }

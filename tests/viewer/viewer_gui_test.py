@@ -16,7 +16,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from dicom_oracle import DicomVolume, window_grey  # noqa: E402
+from dicom_oracle import DicomVolume, window_grey, window_grey_exact  # noqa: E402
 import orthanc  # noqa: E402
 
 BIN = os.environ.get("OCTORAY_BIN", "build/bin")
@@ -168,15 +168,16 @@ class ViewerGui(unittest.TestCase):
         os.makedirs(d, exist_ok=True)
         return Viewer(d)
 
-    def assert_mpr_matches(self, volume, shot, state, view, wl=None, label=""):
-        """The view's pixels equal the reference slice through the plane the viewer reports."""
+    def assert_mpr_matches(self, volume, shot, state, view, wl=None, label="", exact=False):
+        """The view's pixels equal the reference slice through the plane the viewer reports,
+        in DICOM's LINEAR VOI function (LINEAR_EXACT where `exact`)."""
         v = state["views"][view]
         self.assertTrue(v["complete"], f"{label}{view}: slice still loading")
         plane = v["plane"]
         self.assertEqual([plane["width"], plane["height"]], v["rect"][2:])
         expected_values = volume.plane_values(plane)
         w = wl or state["session"]["windowLevel"]
-        expected = window_grey(expected_values, w["window"], w["level"])
+        expected = (window_grey_exact if exact else window_grey)(expected_values, w["window"], w["level"])
         got = crop(shot, v["rect"])
         self.assertTrue(np.all(got[:, :, 0] == got[:, :, 1]) and np.all(got[:, :, 1] == got[:, :, 2]),
                         f"{label}{view}: not grey (overlays drawn?)")
@@ -508,13 +509,15 @@ class ViewerGui(unittest.TestCase):
                          (80, 40, "brain"))
         self.assertEqual(ct["preset"], "bone")
 
-    # A volume without Hounsfield units opens its isosurface at Otsu's threshold of its values
-    # (presets.h), not at the CT's 300 HU, which lies outside such values and shows nothing:
-    # here the 5 mm head as float values in [0, 1], an MHD file that names no unit. The
-    # isovalue is numpy's Otsu threshold of the level the viewer reads, the surface is the
-    # head's skin, and the 3D view equals octoray-render at that isovalue. A CT opened next gets 300 HU; an
-    # isovalue chosen for a CT stays for the next CT, not for the next volume without HU.
-    def test_isosurface_of_a_volume_without_hounsfield_units_opens_at_otsus_threshold(self):
+    # A volume of float values without a unit (the 5 mm head as values in [0, 1], an MHD file
+    # that names none): its slices show in its auto window, narrower than 1, with DICOM's
+    # LINEAR_EXACT VOI function (the oracle's pixels exactly); its isosurface opens at Otsu's
+    # threshold of its values (presets.h), not at the CT's 300 HU, which lies outside such
+    # values and shows nothing. The isovalue is numpy's Otsu threshold of the level the viewer
+    # reads, the surface lies between air and soft tissue, and the 3D view equals
+    # octoray-render at that isovalue. A CT opened next gets LINEAR and 300 HU; an isovalue
+    # chosen for a CT stays for the next CT, not for the next volume without HU.
+    def test_float_volume_without_a_unit_shows_its_narrow_window_and_otsus_isosurface(self):
         vw = self.viewer("iso-no-hu")
         head = DicomVolume(os.path.join(PHILIPS, "S21570/S2010"))
         values = ((head.values + 1024) / 4096).astype("<f4")  # [k, j, i]: x fastest, as MHD
@@ -532,6 +535,8 @@ class ViewerGui(unittest.TestCase):
                     "ElementType = MET_FLOAT\nElementDataFile = head.raw\n")
         vw.run(mhd, [
             {"type": "action", "name": "overlays", "value": False},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("mpr.png")},
             {"type": "action", "name": "mode", "value": "iso"},
             {"type": "wait-converged"},
             {"type": "screenshot", "view": "3d", "path": vw.path("iso.png")},
@@ -540,6 +545,14 @@ class ViewerGui(unittest.TestCase):
             *open_then(self.tilted_store, {"type": "dump-state", "path": vw.path("ct-after-chosen.json")}),
             *open_then(mhd, {"type": "dump-state", "path": vw.path("mhd-again.json")}),
         ])
+        # Its slices show in its auto window, narrower than 1, with LINEAR_EXACT: DICOM's LINEAR
+        # would take the window as 1 wide and show the head white.
+        mpr = load_json(vw.path("mpr.png.json"))
+        self.assertEqual(mpr["dataset"]["voiFunction"], "LINEAR_EXACT")
+        self.assertLess(mpr["session"]["windowLevel"]["window"], 1)
+        oracle = DicomVolume(os.path.join(PHILIPS, "S21570/S2010"))
+        oracle.values = values.astype(np.float64)
+        self.assert_mpr_matches(oracle, load_png(vw.path("mpr.png")), mpr, "axial", label="float MHD: ", exact=True)
         state = load_json(vw.path("iso.png.json"))
         self.assertEqual(state["dataset"]["unit"], "")
         iso = state["session"]["isoValue"]
@@ -577,6 +590,7 @@ class ViewerGui(unittest.TestCase):
         self.assertGreaterEqual(value, 40.0, f"3D isosurface vs octoray-render: PSNR {value:.1f} dB")
         ct = load_json(vw.path("ct.json"))
         self.assertEqual(ct["dataset"]["unit"], "HU")
+        self.assertEqual(ct["dataset"]["voiFunction"], "LINEAR")
         self.assertEqual(ct["session"]["isoValue"], 300)
         self.assertEqual(load_json(vw.path("ct-after-chosen.json"))["session"]["isoValue"], 500)
         self.assertEqual(load_json(vw.path("mhd-again.json"))["session"]["isoValue"], iso)

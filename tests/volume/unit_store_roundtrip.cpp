@@ -220,14 +220,14 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
 // values reaching down to air. The same rule on the source's fields directly.
 TEST(StoreBuild, HounsfieldUnitsAreWhatTheSourceSaysOrIntegerValuesDownToAir) {
   const auto dir = test::freshTempDir("store_hounsfield");
-  struct Case {
+  struct UnitCase {
     const char* name;
     float minimum;
     std::string unit;
     bool integer;
     bool hounsfield, guessed;
   };
-  const Case cases[] = {
+  const UnitCase cases[] = {
       {"said", 0, "HU", true, true, false},            // unit HU: whatever the values
       {"air", -1024, "", true, true, true},            // NIfTI CT without units
       {"padding", -3024, "", true, true, true},        // outside the field of view
@@ -235,7 +235,7 @@ TEST(StoreBuild, HounsfieldUnitsAreWhatTheSourceSaysOrIntegerValuesDownToAir) {
       {"below", -3200, "", true, false, false},        // below any CT value
       {"floats", -1024, "", false, false, false},      // not integers: not judged
   };
-  for (const Case& c : cases) {
+  for (const UnitCase& c : cases) {
     MemoryVolume volume({20, 18, 16}, [&](int64_t i, int64_t j, int64_t k) {
       return i + j + k == 0 ? c.minimum : 100.0f + static_cast<float>(i) + (c.integer ? 0.0f : 0.5f);
     }, c.unit, c.integer);

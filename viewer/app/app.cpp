@@ -246,6 +246,7 @@ void App::resetForDataset(const std::string& source) {
   session.source = source;
   session.measurements.clear();
   valueUnit_.clear();
+  integerValues_ = true;
   sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
   wlChosenForDataset_ = tfChosenForDataset_ = isoChosenForDataset_ = false;
   fileWlPresets_.clear();
@@ -312,6 +313,7 @@ void App::onDatasetReady() {
   }
   computeHistogram();
   valueUnit_ = volume::storeHoldsHounsfieldUnits(*store) ? "HU" : "";
+  integerValues_ = volume::storeHoldsIntegerValues(*store);
   // The store's histogram replaces the preview's auto window; a volume without HU gets the
   // grey ramp for its values in 3D (as octoray-render's default), a CT after one the CT default.
   if (wlUnit_ == "?") wlUnit_ = valueUnit_;
@@ -601,7 +603,7 @@ void App::frame() {
       for (int v = 0; v < 3; ++v) {
         const Rect r = viewRect(static_cast<ViewId>(v));
         if (r.w < 8 || r.h < 8 || !mpr_[static_cast<std::size_t>(v)]) continue;
-        mpr_[static_cast<std::size_t>(v)]->update(session, *grid_, r.w, r.h, slicer_.get(), preview, arrived);
+        mpr_[static_cast<std::size_t>(v)]->update(session, *grid_, r.w, r.h, slicer_.get(), preview, arrived, voiFunction());
       }
       if (slicer_) slicer_->endFrame();
       if (firstMprMs_ < 0 && mpr_[0] && mpr_[0]->complete() == false && mpr_[0]->texture()) {

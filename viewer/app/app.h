@@ -118,7 +118,8 @@ class MprView {
   // Re-slices when the plane or slab changed, or when bricks arrived for an incomplete slice;
   // re-maps grey levels when the window/level changed.
   void update(const Session& session, const Grid& grid, int width, int height,
-              StoreSlicer* slicer, const PreviewVolume* preview, bool bricksArrived);
+              StoreSlicer* slicer, const PreviewVolume* preview, bool bricksArrived,
+              VoiFunction voi);
   const MprPlane& plane() const { return plane_; }
   const Slice& slice() const { return slice_; }
   unsigned texture() const { return texture_; }
@@ -135,6 +136,7 @@ class MprView {
   bool hasSlice_ = false, fromPreview_ = false;
   std::string sliceKey_;
   WindowLevel mappedWl_{-1, 0};
+  VoiFunction mappedVoi_ = VoiFunction::Linear;
   unsigned texture_ = 0;
   int texWidth_ = 0, texHeight_ = 0;
   double lastSliceMs_ = 0;
@@ -231,6 +233,14 @@ class App {
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
   // units); empty before the source's headers are read. Every value label follows it.
   const std::string& valueUnit() const { return valueUnit_; }
+  // How the MPR views map values to grey: DICOM's LINEAR for a volume whose values are
+  // integers, LINEAR_EXACT for one whose values are not (mpr.h); and the narrowest window a
+  // drag or the panel may set with it (1, or a millionth of the values' range).
+  VoiFunction voiFunction() const { return integerValues_ ? VoiFunction::Linear : VoiFunction::LinearExact; }
+  double minimumWindow() const;
+  // Decimals of the value labels (window/level, the value under the cursor, ROI statistics,
+  // the transfer function's points): none for integer values, else as many as their range needs.
+  int labelDecimals() const;
   void selectTfPreset(const std::string& name);
   void resetCamera();
   void standardView(char letter);  // A P L R S I
@@ -343,6 +353,7 @@ class App {
   bool wlChosenForDataset_ = false;  // the reader set a window for this volume
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
+  bool integerValues_ = true;  // every value of the volume is an integer (judged with the unit)
   bool isoChosenForDataset_ = false;  // the reader set the isovalue for this volume
   // The unit of the values the isovalue was set for ("HU": a CT's, kept for the next CT as a
   // table window is; "auto": automaticIsoValue of the volume open; "?": chosen before the

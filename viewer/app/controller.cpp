@@ -208,7 +208,7 @@ void Controller::move(const InputEvent& e) {
   const Tool t = (d.mods & kShift) ? Tool::Crosshair : tool;
   if (t == Tool::WindowLevel) {
     const double gain = d.startWl.window / 200.0;
-    s.wl.window = std::max(1.0, d.startWl.window + dx * gain);
+    s.wl.window = std::max(app_.minimumWindow(), d.startWl.window + dx * gain);
     s.wl.level = d.startWl.level - dy * gain;
     s.wlPreset.clear();
     app_.windowLevelChosen();

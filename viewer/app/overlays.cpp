@@ -184,7 +184,8 @@ void App::drawViews() {
           outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 10 + 2 * fs), text, slab);
         }
         // Window/level (bottom left), the level of detail while loading.
-        std::string wl = fmt::format("W {:.0f}  L {:.0f}", session.wl.window, session.wl.level);
+        const int decimals = labelDecimals();
+        std::string wl = fmt::format("W {:.{}f}  L {:.{}f}", session.wl.window, decimals, session.wl.level, decimals);
         if (!session.wlPreset.empty()) wl += "  " + session.wlPreset;
         outlinedText(dl, font, fs, ImVec2(a.x + 8, b.y - fs - 6), text, wl);
         if (!mv->complete()) {
@@ -207,7 +208,7 @@ void App::drawViews() {
           const double hu = mv->valueAt(mx, my);
           const std::string probe = std::isnan(hu)
                                         ? fmt::format("({:.1f}, {:.1f}, {:.1f}) mm LPS", q.x, q.y, q.z)
-                                        : fmt::format("{:.0f}{}   ({:.1f}, {:.1f}, {:.1f}) mm LPS", hu,
+                                        : fmt::format("{:.{}f}{}   ({:.1f}, {:.1f}, {:.1f}) mm LPS", hu, decimals,
                                                       unitSuffix(valueUnit_), q.x, q.y, q.z);
           outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, probe).x - 8, a.y + 6), dim, probe);
         }
@@ -279,9 +280,11 @@ void App::drawViews() {
           }
           if (finished) {
             const RoiStats st = roiStatsOf(m);
-            label = st.samples == 0 ? describe(m, &st, valueUnit_)
-                                    : fmt::format("mean {:.1f} SD {:.1f}{}\nmin {:.0f} max {:.0f}\n{:.1f} mm\u00b2",
-                                                  st.mean, st.sd, unitSuffix(valueUnit_), st.min, st.max, st.areaMm2);
+            label = st.samples == 0 ? describe(m, &st, valueUnit_, labelDecimals())
+                                    : fmt::format("mean {:.{}f} SD {:.{}f}{}\nmin {:.{}f} max {:.{}f}\n{:.1f} mm\u00b2",
+                                                  st.mean, labelDecimals() + 1, st.sd, labelDecimals() + 1,
+                                                  unitSuffix(valueUnit_), st.min, labelDecimals(), st.max,
+                                                  labelDecimals(), st.areaMm2);
           }
         }
         if (!label.empty()) {

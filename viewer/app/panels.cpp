@@ -135,12 +135,15 @@ void App::drawPanels() {
     double w = session.wl.window, l = session.wl.level;
     // The labels name the volume's unit; the widgets' IDs stay the same ("###").
     const std::string unit = valueUnit_.empty() ? "" : " (" + valueUnit_ + ")";
-    if (ImGui::InputDouble(("window" + unit + "###window").c_str(), &w, 10, 100, "%.0f")) {
-      session.wl.window = std::max(1.0, w);
+    // Steps of 10 and 100 for integer values (HU), of a hundredth and a tenth of the range else.
+    const std::string valueFormat = fmt::format("%.{}f", labelDecimals());
+    const double step = integerValues_ ? 10 : (histHi_ - histLo_) / 100;
+    if (ImGui::InputDouble(("window" + unit + "###window").c_str(), &w, step, 10 * step, valueFormat.c_str())) {
+      session.wl.window = std::max(minimumWindow(), w);
       session.wlPreset.clear();
       windowLevelChosen();
     }
-    if (ImGui::InputDouble(("level" + unit + "###level").c_str(), &l, 10, 100, "%.0f")) {
+    if (ImGui::InputDouble(("level" + unit + "###level").c_str(), &l, step, 10 * step, valueFormat.c_str())) {
       session.wl.level = l;
       session.wlPreset.clear();
       windowLevelChosen();
@@ -165,9 +168,9 @@ void App::drawPanels() {
         }
         if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", p.source.c_str());
         ImGui::TableNextColumn();
-        ImGui::Text("%.0f", p.window);
+        ImGui::Text(valueFormat.c_str(), p.window);
         ImGui::TableNextColumn();
-        ImGui::Text("%.0f", p.level);
+        ImGui::Text(valueFormat.c_str(), p.level);
         ImGui::PopID();
       }
       ImGui::EndTable();
@@ -304,7 +307,7 @@ void App::drawPanels() {
       std::string text;
       if (m.kind == MeasureKind::Ellipse || m.kind == MeasureKind::Rectangle) {
         const RoiStats st = roiStatsOf(m);
-        text = describe(m, &st, valueUnit_);
+        text = describe(m, &st, valueUnit_, labelDecimals());
       } else {
         text = describe(m);
       }

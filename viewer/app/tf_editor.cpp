@@ -107,13 +107,13 @@ void App::drawTfEditor() {
     tf.opacity.erase(tf.opacity.begin() + hovered);
   }
   if (hovered >= 0) {
-    ImGui::SetTooltip("%.0f%s, opacity %.3f", tf.opacity[static_cast<std::size_t>(hovered)].value, unit.c_str(),
+    ImGui::SetTooltip("%.*f%s, opacity %.3f", labelDecimals(), tf.opacity[static_cast<std::size_t>(hovered)].value, unit.c_str(),
                       tf.opacity[static_cast<std::size_t>(hovered)].alpha);
   }
   dl->AddRect(p0, p1, IM_COL32(90, 90, 100, 255));
-  ImGui::TextDisabled("%.0f%s", lo, unit.c_str());
+  ImGui::TextDisabled("%.*f%s", labelDecimals(), lo, unit.c_str());
   ImGui::SameLine(ImGui::GetContentRegionAvail().x - 60);
-  ImGui::TextDisabled("%.0f%s", hi, unit.c_str());
+  ImGui::TextDisabled("%.*f%s", labelDecimals(), hi, unit.c_str());
 
   // Colour points: swatches, each editable.
   ImGui::TextUnformatted("colour points");
@@ -126,7 +126,7 @@ void App::drawTfEditor() {
       tf.color[i].b = c[2];
       markInteraction();
     }
-    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%.0f%s", tf.color[i].value, unit.c_str());
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%.*f%s", labelDecimals(), tf.color[i].value, unit.c_str());
     if ((i + 1) % 10 != 0) ImGui::SameLine();
     ImGui::PopID();
   }

@@ -150,7 +150,7 @@ double MprView::valueAt(int x, int y) const {
 }
 
 void MprView::update(const Session& s, const Grid& grid, int width, int height, StoreSlicer* slicer,
-                     const PreviewVolume* preview, bool bricksArrived) {
+                     const PreviewVolume* preview, bool bricksArrived, VoiFunction voi) {
   if (width < 8 || height < 8) return;
   plane_ = mprPlane(id_, s, grid, width, height);
   SliceRequest req;
@@ -176,15 +176,16 @@ void MprView::update(const Session& s, const Grid& grid, int width, int height, 
     mappedWl_ = {-1, 0};
   }
   if (!hasSlice_) return;
-  if (mappedWl_.window != s.wl.window || mappedWl_.level != s.wl.level) {
+  if (mappedWl_.window != s.wl.window || mappedWl_.level != s.wl.level || mappedVoi_ != voi) {
     std::vector<uint8_t> rgba(static_cast<std::size_t>(slice_.width * slice_.height) * 4);
     for (std::size_t i = 0; i < slice_.hu.size(); ++i) {
-      const uint8_t g = windowGrey(slice_.hu[i], s.wl);
+      const uint8_t g = windowGrey(slice_.hu[i], s.wl, voi);
       rgba[4 * i + 0] = rgba[4 * i + 1] = rgba[4 * i + 2] = g;
       rgba[4 * i + 3] = 255;
     }
     uploadRgba8(texture_, texWidth_, texHeight_, slice_.width, slice_.height, rgba, false);
     mappedWl_ = s.wl;
+    mappedVoi_ = voi;
   }
 }
 

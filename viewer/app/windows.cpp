@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "app.h"
+#include "util.h"
 #include "octoray/core/error.h"
 #include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function_io.h"
@@ -116,7 +117,14 @@ void App::modeChanged() {
 void App::judgeValueUnit(double minimum) {
   const VolumeInfo info = dataset_->info();
   valueUnit_ = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, minimum) ? "HU" : "";
+  integerValues_ = info.integerValues;
 }
+
+double App::minimumWindow() const {
+  return integerValues_ ? 1.0 : std::max(1e-6 * (histHi_ - histLo_), std::numeric_limits<double>::min());
+}
+
+int App::labelDecimals() const { return integerValues_ ? 0 : valueDecimals(histHi_ - histLo_); }
 
 void App::windowLevelChosen(bool tablePreset) {
   wlChosenForDataset_ = true;

@@ -100,7 +100,7 @@ std::string unitSuffix(const std::string& valueUnit) {
   return valueUnit.empty() ? "" : " " + valueUnit;
 }
 
-std::string describe(const Measurement& m, const RoiStats* stats, const std::string& valueUnit) {
+std::string describe(const Measurement& m, const RoiStats* stats, const std::string& valueUnit, int decimals) {
   switch (m.kind) {
     case MeasureKind::Distance: return fmt::format("{:.2f} mm", distanceMm(m));
     case MeasureKind::Angle: return fmt::format("{:.1f}\u00b0", angleDegrees(m));
@@ -108,8 +108,9 @@ std::string describe(const Measurement& m, const RoiStats* stats, const std::str
     case MeasureKind::Rectangle:
       if (!stats) return "ROI";
       if (stats->samples == 0) return fmt::format("outside the volume, {:.1f} mm\u00b2", stats->areaMm2);
-      return fmt::format("mean {:.1f} SD {:.1f}{}, min {:.0f} max {:.0f}, {:.1f} mm\u00b2", stats->mean,
-                         stats->sd, unitSuffix(valueUnit), stats->min, stats->max, stats->areaMm2);
+      return fmt::format("mean {:.{}f} SD {:.{}f}{}, min {:.{}f} max {:.{}f}, {:.1f} mm\u00b2", stats->mean,
+                         decimals + 1, stats->sd, decimals + 1, unitSuffix(valueUnit), stats->min, decimals,
+                         stats->max, decimals, stats->areaMm2);
   }
   return {};
 }

@@ -141,8 +141,14 @@ std::string orientationLabel(Vec3 d) {
   return label;
 }
 
-uint8_t windowGrey(double x, const WindowLevel& wl) {
+uint8_t windowGrey(double x, const WindowLevel& wl, VoiFunction function) {
   if (std::isnan(x)) return 0;
+  if (function == VoiFunction::LinearExact) {
+    const double c = wl.level, w = wl.window;
+    if (!(w > 0) || x <= c - w / 2) return x > c ? 255 : 0;
+    if (x > c + w / 2) return 255;
+    return static_cast<uint8_t>(std::clamp(std::lround(((x - c) / w + 0.5) * 255.0), 0L, 255L));
+  }
   const double c = wl.level, w = std::max(1.0, wl.window);
   if (x <= c - 0.5 - (w - 1) / 2) return 0;
   if (x > c - 0.5 + (w - 1) / 2) return 255;

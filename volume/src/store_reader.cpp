@@ -299,13 +299,18 @@ void StoreReader::checkRange(const Brick& brick, const NodeRecord& n, int64_t id
   }
 }
 
-bool storeHoldsHounsfieldUnits(const StoreReader& store, bool* guessed) {
+bool storeHoldsIntegerValues(const StoreReader& store) {
   const StoreSource& source = store.source();
   const StoreHeader& h = store.header();
-  const bool integer = source.integerValues ? *source.integerValues
-                                            : store.sampleFormat() == SampleFormat::UInt16 && h.valueScale == 1.0 &&
-                                                  h.valueOffset == std::round(h.valueOffset);
-  return holdsHounsfieldUnits(source.unit, source.modality, integer, store.node(0).minValue, guessed);
+  return source.integerValues ? *source.integerValues
+                              : store.sampleFormat() == SampleFormat::UInt16 && h.valueScale == 1.0 &&
+                                    h.valueOffset == std::round(h.valueOffset);
+}
+
+bool storeHoldsHounsfieldUnits(const StoreReader& store, bool* guessed) {
+  const StoreSource& source = store.source();
+  return holdsHounsfieldUnits(source.unit, source.modality, storeHoldsIntegerValues(store), store.node(0).minValue,
+                              guessed);
 }
 
 }  // namespace octoray::volume

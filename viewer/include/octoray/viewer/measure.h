@@ -32,9 +32,10 @@ RoiStats roiStats(const Measurement& m, const std::vector<double>& values);
 
 // A one-line result for the panel and the image ("52.31 mm", "90.0°",
 // "mean 40.2 SD 3.1 HU, min 31 max 50, 314.2 mm²"). An ROI's values carry `valueUnit`, the
-// volume's ("HU" for CT); without one they are plain numbers.
+// volume's ("HU" for CT); without one they are plain numbers. Minimum and maximum have
+// `decimals` decimals, mean and SD one more (a volume whose values are not integers needs some).
 std::string describe(const Measurement& m, const RoiStats* stats = nullptr,
-                     const std::string& valueUnit = "");
+                     const std::string& valueUnit = "", int decimals = 0);
 // " HU" for "HU", nothing for no unit: what follows a value in a label.
 std::string unitSuffix(const std::string& valueUnit);
 

@@ -159,9 +159,16 @@ class StoreSlicer {
   int64_t lastRequested_ = 0;
 };
 
-// Maps physical values to grey levels with a window/level (DICOM's linear VOI function,
-// PS3.3 C.11.2.1.2: values at level - window/2 and below black, level + window/2 and above
-// white). NaN (outside the volume) maps to black.
-uint8_t windowGrey(double value, const WindowLevel& wl);
+// DICOM's VOI LUT functions (PS3.3 C.11.2.1.2-3). LINEAR, the default, is defined for integer
+// values and a window of at least 1 (its -0.5 and window - 1 place integers on the grey
+// ramp): what CT and MR viewers show. LINEAR_EXACT maps level +- window/2 linearly, for any
+// window above 0: for a volume whose values are not integers (a float NIfTI or MHD, values in
+// [0, 1]), where LINEAR would show a window narrower than 1 as a step.
+enum class VoiFunction { Linear, LinearExact };
+
+// Maps physical values to grey levels with a window/level: values at level - window/2 and
+// below black, level + window/2 and above white. LINEAR takes a window below 1 as 1. NaN
+// (outside the volume) maps to black.
+uint8_t windowGrey(double value, const WindowLevel& wl, VoiFunction function = VoiFunction::Linear);
 
 }  // namespace octoray::viewer

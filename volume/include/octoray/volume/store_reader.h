@@ -100,9 +100,12 @@ class StoreReader {
   StoreSource source_;
 };
 
+// Whether every value of a store's source was an integer: from the provenance; stores from
+// before it said are judged by their sample format (16-bit with an integer offset and scale 1).
+bool storeHoldsIntegerValues(const StoreReader& store);
+
 // Whether a store's values are Hounsfield units (holdsHounsfieldUnits of volume_source.h, from
-// its provenance and its root's minimum). Whether the source's values were integers comes from
-// the provenance; stores from before it said are judged by their sample format.
+// its provenance, storeHoldsIntegerValues and its root's minimum).
 bool storeHoldsHounsfieldUnits(const StoreReader& store, bool* guessed = nullptr);
 
 // Parses and checks a header from raw bytes (used by the reader and the fuzz target).
