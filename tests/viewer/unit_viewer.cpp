@@ -249,6 +249,57 @@ TEST(ViewerPreview, PreviewSlicesEqualTheSource) {
   EXPECT_EQ(small.factor(), 2);
 }
 
+// The preview's histogram, read while a volume arrives, reads at most 4 Mi samples: all of
+// the slices shown where they hold fewer, every n-th row in order where they hold more; the
+// auto window it gives is within a bin of the exact one.
+TEST(ViewerPreview, HistogramReadsAtMostItsBudgetOfSamples) {
+  const std::array<int64_t, 3> dims{256, 256, 80};  // 5.2 Mi samples
+  auto value = [](int64_t i, int64_t j, int64_t k) { return static_cast<float>(i + j + 3 * k); };
+  test::MemoryVolume volume(dims, value);
+  PreviewVolume preview(volume.info(), 64u << 20);
+  ASSERT_EQ(preview.factor(), 1);
+  // The exact histogram of slices [0, slices), over the same range the preview finds.
+  auto exact = [&](int64_t slices, double lo, double hi) {
+    std::vector<int> counts(256, 0);
+    for (int64_t k = 0; k < slices; ++k) {
+      for (int64_t j = 0; j < dims[1]; ++j) {
+        for (int64_t i = 0; i < dims[0]; ++i) {
+          ++counts[static_cast<std::size_t>(std::clamp(static_cast<int>((value(i, j, k) - lo) / (hi - lo) * 256), 0, 255))];
+        }
+      }
+    }
+    return counts;
+  };
+  std::vector<float> slice(static_cast<std::size_t>(dims[0] * dims[1]));
+  auto add = [&](int64_t k) {
+    for (int64_t j = 0; j < dims[1]; ++j) {
+      for (int64_t i = 0; i < dims[0]; ++i) slice[static_cast<std::size_t>(j * dims[0] + i)] = value(i, j, k);
+    }
+    preview.addSlice(k, slice);
+  };
+  // Half the slices: 2.6 Mi samples, all read.
+  for (int64_t k = 0; k < 40; ++k) add(k);
+  double lo = 0, hi = 0;
+  std::vector<int> counts = preview.histogram(256, lo, hi);
+  EXPECT_EQ(lo, 0);
+  EXPECT_EQ(hi, 255 + 255 + 3 * 39);
+  EXPECT_EQ(counts, exact(40, lo, hi));
+  // All of them: every second row, 2.6 Mi samples of 5.2 Mi.
+  for (int64_t k = 40; k < dims[2]; ++k) add(k);
+  counts = preview.histogram(256, lo, hi);
+  int64_t read = 0;
+  for (const int c : counts) read += c;
+  EXPECT_EQ(read, dims[0] * dims[1] * dims[2] / 2);
+  EXPECT_LE(read, static_cast<int64_t>(PreviewVolume::kHistogramSamples));
+  EXPECT_EQ(lo, 0);
+  EXPECT_EQ(hi, 255 + 254 + 3 * 79);  // the largest value of the even rows
+  const WindowLevelPreset got = autoWindowLevel(counts, lo, hi);
+  const WindowLevelPreset want = autoWindowLevel(exact(dims[2], lo, hi), lo, hi);
+  const double bin = (hi - lo) / 256;
+  EXPECT_NEAR(got.level - got.window / 2, want.level - want.window / 2, bin);
+  EXPECT_NEAR(got.level + got.window / 2, want.level + want.window / 2, bin);
+}
+
 TEST(ViewerMeasure, DistanceAngleAndRoi) {
   Measurement d{MeasureKind::Distance, ViewId::Axial, {{0, 0, 0}, {3, 4, 0}}};
   EXPECT_DOUBLE_EQ(distanceMm(d), 5.0);

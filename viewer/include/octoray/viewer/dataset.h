@@ -54,6 +54,9 @@ class PreviewVolume {
   double fraction() const;
   // The values of the slices shown so far, counted in `bins` equal bins over their range
   // [lo, hi] (what the auto window/level reads while a volume arrives); empty before any.
+  // Where they hold more than kHistogramSamples, every n-th row in order, so that at most that
+  // many are read: the store's histogram reads as many (App::computeHistogram).
+  static constexpr std::size_t kHistogramSamples = std::size_t{1} << 22;
   std::vector<int> histogram(int bins, double& lo, double& hi) const;
 
  private:
