@@ -130,14 +130,13 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
   }
 }
 
-// The display windows `ds` names, in order (PS3.3 C.11.2.1.2). They are shown as the linear
-// map from center - width / 2 to center + width / 2 (the standard's LINEAR_EXACT; its LINEAR
-// differs by half a unit). A pair that is not two finite numbers is left out, and so is a
-// width below 1: the LINEAR function (the default) allows none (C.11.2.1.2.1), and the viewer
-// shows windows of at least 1 unit (a drag scales with the width), so a narrower LINEAR_EXACT
-// or SIGMOID window (C.11.2.1.3.2 allows any above 0) would not be shown as named. `problem`
-// says so, where it is still empty; so does a SIGMOID function, whose windows are still shown,
-// linear. A window named twice is kept once.
+// The display windows `ds` names, in order (PS3.3 C.11.2.1.2). The viewer shows them with
+// the standard's LINEAR function where the volume's values are integers and with LINEAR_EXACT
+// where they are not (they differ by half a unit). A pair that is not two finite numbers is
+// left out, and so is a width below 1 where the function is LINEAR (the default, which allows
+// none, C.11.2.1.2.1) or a width not above 0 where it is LINEAR_EXACT or SIGMOID (which allow
+// any above 0, C.11.2.1.3). `problem` says so, where it is still empty; so does a SIGMOID
+// function, whose windows are still shown, linear. A window named twice is kept once.
 std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& problem) {
   const std::string centerText = stringValue(ds, kWindowCenter), widthText = stringValue(ds, kWindowWidth);
   if (centerText.empty() && widthText.empty()) return {};
@@ -160,9 +159,15 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
   const std::vector<std::string> explanations = stringValues(ds, kWindowExplanation);
   std::vector<SourceWindow> windows;
   for (std::size_t i = 0; i < std::min(centers->size(), widths->size()); ++i) {
-    if ((*widths)[i] < 1) {
-      say(fmt::format("WindowWidth {} is below 1{}: that window is left out", (*widths)[i],
-                      function.empty() || function == "LINEAR" ? "" : " (narrower than octoray shows)"));
+    const bool linear = function.empty() || function == "LINEAR";
+    if (linear && (*widths)[i] < 1) {
+      say(fmt::format("WindowWidth {} is below 1, the least the LINEAR VOI function allows: that window "
+                      "is left out",
+                      (*widths)[i]));
+      continue;
+    }
+    if (!((*widths)[i] > 0)) {
+      say(fmt::format("WindowWidth {} is not above 0: that window is left out", (*widths)[i]));
       continue;
     }
     SourceWindow w;

@@ -141,21 +141,24 @@ TEST(SeriesWindows, AnEnhancedObjectsFramesVoteWithTheirOwnFrameVoiLut) {
   }
 }
 
-// A window that is not a pair of finite numbers, or narrower than 1 (LINEAR allows none,
-// PS3.3 C.11.2.1.2.1; LINEAR_EXACT does, but the viewer shows at least 1 unit), is left out
-// with a warning naming the file; the series is read as before. SIGMOID is
-// said; its windows are shown as linear ones.
+// A window that is not a pair of finite numbers, narrower than 1 where the function is LINEAR
+// (which allows none, PS3.3 C.11.2.1.2.1) or not above 0 where it is LINEAR_EXACT (which
+// allows any above 0), is left out with a warning naming the file; the series is read as
+// before. A LINEAR_EXACT window narrower than 1 is kept (the viewer shows it on values that
+// are not integers). SIGMOID is said; its windows are shown as linear ones.
 TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
   struct Case {
     const char* name;
     std::vector<std::pair<DicomTag, std::string>> values;
     std::size_t windowsKept;
-    const char* warning;
+    const char* warning;  // none where every window is kept
   };
   const Case cases[] = {
-      {"narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}}, 1, "WindowWidth 0.5 is below 1: that window"},
-      {"exact-narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}, {kFunction, "LINEAR_EXACT"}}, 1,
-       "WindowWidth 0.5 is below 1 (narrower than octoray shows)"},
+      {"narrow", {{kCenter, "40\\300"}, {kWidth, "0.5\\1500"}}, 1,
+       "WindowWidth 0.5 is below 1, the least the LINEAR VOI function allows: that window"},
+      {"exact-narrow", {{kCenter, "0.3\\300"}, {kWidth, "0.5\\1500"}, {kFunction, "LINEAR_EXACT"}}, 2, nullptr},
+      {"exact-zero", {{kCenter, "40\\300"}, {kWidth, "0\\1500"}, {kFunction, "LINEAR_EXACT"}}, 1,
+       "WindowWidth 0 is not above 0: that window is left out"},
       {"junk", {{kCenter, "forty"}, {kWidth, "80"}}, 0,
        "WindowCenter 'forty' / WindowWidth '80' are not finite numbers"},
       {"uneven", {{kCenter, "40\\300"}, {kWidth, "80"}}, 1, "WindowCenter has 2 values and WindowWidth 1"},
@@ -165,7 +168,12 @@ TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
     SCOPED_TRACE(c.name);
     const WindowedSeries w = writeWithWindows(std::string("windows-") + c.name, {c.values, c.values, c.values});
     EXPECT_EQ(w.info.windows.size(), c.windowsKept);
-    for (const SourceWindow& kept : w.info.windows) EXPECT_GE(kept.width, 1);
+    for (const SourceWindow& kept : w.info.windows) EXPECT_GT(kept.width, 0);
+    if (!c.warning) {
+      EXPECT_TRUE(w.info.warnings.empty()) << w.info.warnings[0];
+      EXPECT_EQ(w.info.windows.front().width, 0.5);
+      continue;
+    }
     ASSERT_EQ(w.info.warnings.size(), 1u);
     EXPECT_NE(w.info.warnings[0].find(c.warning), std::string::npos) << w.info.warnings[0];
     EXPECT_EQ(w.info.warnings[0].rfind(w.dir.string() + "/", 0), 0u) << w.info.warnings[0];  // names the file

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <thread>
+#include <limits>
 #include <numbers>
 #include <random>
 
@@ -519,8 +520,9 @@ TEST(ViewerPresets, AutoWindowLevelSpansTheMiddleOfTheValues) {
 }
 
 // The isovalue of a volume without HU: Otsu's threshold of its histogram, checked against
-// OpenCV's THRESH_OTSU on an 8-bit image whose pixels are the samples' bin numbers (its
-// threshold t puts bins 0..t below, so the isovalue is the upper edge of bin t).
+// OpenCV's THRESH_OTSU on an 8-bit image whose pixels are the samples' bin numbers: its
+// threshold t puts bins 0..t below, so the isovalue splits the samples into the same two
+// classes, at the upper edge of bin t or, where empty bins follow it, in the middle of them.
 TEST(ViewerPresets, AutomaticIsoValueIsOtsusThresholdOfTheValues) {
   const double lo = -12.5, hi = 3827.5;  // an MR's range; 256 bins of 15 units
   std::mt19937 rng(2026);
@@ -543,15 +545,23 @@ TEST(ViewerPresets, AutomaticIsoValueIsOtsusThresholdOfTheValues) {
       }
     }
     cv::Mat unused;
-    const double t = cv::threshold(bins, unused, 0, 255, cv::THRESH_BINARY | cv::THRESH_OTSU);
+    const auto t = static_cast<std::size_t>(cv::threshold(bins, unused, 0, 255, cv::THRESH_BINARY | cv::THRESH_OTSU));
     const double iso = automaticIsoValue(histogram, lo, hi);
-    EXPECT_NEAR(iso, lo + (t + 1) * (hi - lo) / 256, 1e-9) << "classes at bins " << mix.background << " and " << mix.object;
+    std::size_t gap = t + 1;  // the empty bins after t
+    while (gap < 256 && histogram[gap] == 0) ++gap;
+    EXPECT_NEAR(iso, lo + (0.5 * static_cast<double>(t + gap - 1) + 1) * (hi - lo) / 256, 1e-9)
+        << "classes at bins " << mix.background << " and " << mix.object << ", OpenCV's threshold " << t;
     // Between the two classes' means (well apart for the first three).
     if (mix.object - mix.background > 3 * mix.spread) {
       EXPECT_GT(iso, lo + mix.background * 15);
       EXPECT_LT(iso, lo + mix.object * 15);
     }
   }
+  // A 0/1 mask: the middle of the gap between its two values, 0.5, not just above 0.
+  std::vector<int> mask(256, 0);
+  mask[0] = 9000;
+  mask[255] = 1000;
+  EXPECT_DOUBLE_EQ(automaticIsoValue(mask, 0, 1), 0.5);
   // Nothing to split: the middle of the range.
   std::vector<int> one(256, 0);
   one[40] = 5000;
@@ -561,6 +571,23 @@ TEST(ViewerPresets, AutomaticIsoValueIsOtsusThresholdOfTheValues) {
 }
 
 // An ROI's statistics carry the volume's unit, and none where it has none (an MR series).
+// Labels carry about a thousandth of the range; controls step by about a hundredth of it.
+TEST(ViewerPresets, ValueLabelsAndStepsFollowTheRange) {
+  EXPECT_EQ(valueDecimals(4095), 0);   // CT's HU
+  EXPECT_EQ(valueDecimals(100), 0);
+  EXPECT_EQ(valueDecimals(99.9), 1);
+  EXPECT_EQ(valueDecimals(1), 2);
+  EXPECT_EQ(valueDecimals(0.44), 3);   // values in [0, 0.44]
+  EXPECT_EQ(valueDecimals(0.003), 5);  // an ADC map in mm^2/s
+  EXPECT_EQ(valueDecimals(0), 0);
+  EXPECT_EQ(valueDecimals(std::nan("")), 0);
+  EXPECT_EQ(valueDecimals(std::numeric_limits<double>::infinity()), 0);
+  EXPECT_DOUBLE_EQ(valueStep(4095), 10);
+  EXPECT_DOUBLE_EQ(valueStep(0.44), 0.001);
+  EXPECT_DOUBLE_EQ(valueStep(0.003), 1e-5);
+  EXPECT_EQ(valueStep(-1), 1);
+}
+
 TEST(ViewerMeasure, RoiStatisticsNameTheVolumesUnitOrNone) {
   const Measurement r{MeasureKind::Rectangle, ViewId::Axial, {{0, 0, 0}, {10, 5, 0}}};
   const RoiStats st = roiStats(r, {30, 40, 50});

@@ -242,6 +242,8 @@ void App::resetForDataset(const std::string& source) {
   grid_.reset();
   dataset_.reset();
   histogram_.clear();
+  histLo_ = -1024;  // until the preview's or the store's histogram gives the volume's range
+  histHi_ = 3071;
   crosshairSet_ = datasetFailedOpen_ = datasetErrorShown_ = false;
   session.source = source;
   session.measurements.clear();

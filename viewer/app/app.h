@@ -356,8 +356,9 @@ class App {
   bool integerValues_ = true;  // every value of the volume is an integer (judged with the unit)
   bool isoChosenForDataset_ = false;  // the reader set the isovalue for this volume
   // The unit of the values the isovalue was set for ("HU": a CT's, kept for the next CT as a
-  // table window is; "auto": automaticIsoValue of the volume open; "?": chosen before the
-  // volume's unit was known). A CT opened after any other gets kDefaultCtIsoValueHu.
+  // table window is; "auto": automaticIsoValue of the volume open; "": chosen for a volume
+  // without HU; "?": chosen before the volume's unit was known). A CT opened after any but
+  // "HU" gets kDefaultCtIsoValueHu.
   std::string isoUnit_ = "HU";
   // The isovalue the volume opens with, unless the reader chose one: a CT keeps a CT's, else
   // transfer::kDefaultCtIsoValueHu; a volume without HU gets automaticIsoValue of its histogram.

@@ -9,7 +9,6 @@
 #include <cmath>
 
 #include "app.h"
-#include "util.h"
 
 namespace octoray::viewer {
 namespace {

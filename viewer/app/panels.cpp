@@ -9,7 +9,6 @@
 #include <filesystem>
 
 #include "app.h"
-#include "util.h"
 #include "octoray/core/error.h"
 
 namespace octoray::viewer {
@@ -135,9 +134,9 @@ void App::drawPanels() {
     double w = session.wl.window, l = session.wl.level;
     // The labels name the volume's unit; the widgets' IDs stay the same ("###").
     const std::string unit = valueUnit_.empty() ? "" : " (" + valueUnit_ + ")";
-    // Steps of 10 and 100 for integer values (HU), of a hundredth and a tenth of the range else.
+    // Steps of about a hundredth and a tenth of the range (10 and 100 for CT).
     const std::string valueFormat = fmt::format("%.{}f", labelDecimals());
-    const double step = integerValues_ ? 10 : (histHi_ - histLo_) / 100;
+    const double step = valueStep(histHi_ - histLo_);
     if (ImGui::InputDouble(("window" + unit + "###window").c_str(), &w, step, 10 * step, valueFormat.c_str())) {
       session.wl.window = std::max(minimumWindow(), w);
       session.wlPreset.clear();
@@ -168,9 +167,9 @@ void App::drawPanels() {
         }
         if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", p.source.c_str());
         ImGui::TableNextColumn();
-        ImGui::Text(valueFormat.c_str(), p.window);
+        ImGui::Text("%.*f", labelDecimals(), p.window);
         ImGui::TableNextColumn();
-        ImGui::Text(valueFormat.c_str(), p.level);
+        ImGui::Text("%.*f", labelDecimals(), p.level);
         ImGui::PopID();
       }
       ImGui::EndTable();

@@ -164,8 +164,16 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   else if (name == "preset") selectTfPreset(text());
   else if (name == "wl-preset") chooseWindowLevelPreset(text());
   else if (name == "window-level") {
-    if (!value.is_array() || value.size() != 2) throw Error("", "action window-level: expected [window, level]");
-    session.wl = {value[0].get<double>(), value[1].get<double>()};
+    if (!value.is_array() || value.size() != 2 || !value[0].is_number() || !value[1].is_number()) {
+      throw Error("", "action window-level: expected [window, level], two numbers");
+    }
+    const double window = value[0].get<double>(), level = value[1].get<double>();
+    // A session keeps only a window above 0 (session.cpp), so none other is taken here.
+    if (!(window > 0) || !std::isfinite(window) || !std::isfinite(level)) {
+      throw Error("", fmt::format("action window-level: the window must be above 0 and both finite, not [{}, {}]",
+                                  window, level));
+    }
+    session.wl = {window, level};
     session.wlPreset.clear();
     windowLevelChosen();
   } else if (name == "mode") {

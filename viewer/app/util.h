@@ -19,12 +19,6 @@ inline std::filesystem::path configDir() {
   return std::filesystem::temp_directory_path() / "octoray-config";
 }
 
-// Decimals enough to tell values apart on a control spanning `range` of the volume's unit: none
-// for HU and other wide ranges, more for a volume whose values span a few units or less.
-inline int valueDecimals(double range) {
-  return range >= 100 ? 0 : range >= 10 ? 1 : range >= 1 ? 2 : 4;
-}
-
 inline double residentMib() {
   std::ifstream in("/proc/self/statm");
   long pages = 0, resident = 0;

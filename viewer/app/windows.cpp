@@ -8,7 +8,6 @@
 #include <limits>
 
 #include "app.h"
-#include "util.h"
 #include "octoray/core/error.h"
 #include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function_io.h"
@@ -22,18 +21,23 @@ void App::computeHistogram() {
   if (!store) return;
   const auto& layout = store->layout();
   // The finest level of at most 4 Mi samples (the whole volume where it is that small), as
-  // many as the preview's histogram reads: its bricks are read once, here, when the store is
-  // ready. The 1 mm head (512 x 512 x 140) is read at 128 x 128 x 35, the 5 mm one
-  // (512 x 512 x 28) at 256 x 256 x 14.
+  // many as the preview's histogram reads, and of at most 256 bricks (each is decoded whole, so
+  // a thin volume's level of 4 Mi samples could mean thousands): its bricks are read once,
+  // here, when the store is ready. The 1 mm head (512 x 512 x 140) is read at 128 x 128 x 35,
+  // the 5 mm one (512 x 512 x 28) at 256 x 256 x 14 (64 bricks, 29 ms), a 640^3 phantom at
+  // 160^3 (125 bricks, 40 ms).
   constexpr auto kMaxSamples = static_cast<int64_t>(PreviewVolume::kHistogramSamples);
+  constexpr int64_t kMaxBricks = 256;
   int level = layout.leafLevel();
   while (level > 0) {
     const auto& d = layout.levelDims(level);
-    if (d[0] * d[1] * d[2] <= kMaxSamples) break;
+    const int64_t bricks = layout.levelNodeOffset(level + 1) - layout.levelNodeOffset(level);
+    if (d[0] * d[1] * d[2] <= kMaxSamples && bricks <= kMaxBricks) break;
     --level;
   }
   histLo_ = store->node(0).minValue;
-  histHi_ = std::max(histLo_ + 1, static_cast<double>(store->node(0).maxValue));
+  histHi_ = store->node(0).maxValue;
+  if (!(histHi_ > histLo_)) histHi_ = histLo_ + 1;  // a constant volume: one unit, never an empty range
   histogram_.assign(256, 0);
   const int B = layout.brickSize(), A = layout.border(), E = layout.storedEdge();
   const int64_t first = layout.levelNodeOffset(level), last = layout.levelNodeOffset(level + 1);
@@ -273,6 +277,10 @@ void App::lookAtPreview(const PreviewVolume& preview) {
       double lo = 0, hi = 0;
       const std::vector<int> counts = preview.histogram(256, lo, hi);
       if (!counts.empty()) {
+        if (histogram_.empty()) {  // the range of the values so far, until the store's
+          histLo_ = lo;
+          histHi_ = hi;
+        }
         judgeValueUnit(lo);
         applyAutomaticWindowLevel(counts, lo, hi);
         autoWlPreviewFraction_ = fraction;

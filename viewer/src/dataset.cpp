@@ -161,7 +161,7 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
     hi = std::max(hi, v);
   });
   if (!(hi >= lo)) return {};
-  hi = std::max(hi, lo + 1);  // as the store's histogram: never an empty range
+  if (!(hi > lo)) hi = lo + 1;  // as the store's histogram: never an empty range
   std::vector<int> counts(static_cast<std::size_t>(bins), 0);
   forEachSample([&](double v) {
     const int bin = std::clamp(static_cast<int>((v - lo) / (hi - lo) * bins), 0, bins - 1);

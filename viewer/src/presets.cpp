@@ -127,9 +127,11 @@ double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi
     weighted += static_cast<double>(b) * histogram[b];
   }
   // Maximise the between-class variance w0 w1 (m0 - m1)^2 over the split after bin t, in bin
-  // units; the first maximum wins, as OpenCV's THRESH_OTSU.
+  // units. Empty bins after the best split give the same classes, so the same variance: the
+  // threshold is the middle of that run of equal maxima (a 0/1 mask's is 0.5, not just above 0;
+  // OpenCV's THRESH_OTSU takes the first).
   double below = 0, belowWeighted = 0, best = 0;
-  std::optional<std::size_t> split;
+  std::optional<std::size_t> first, last;
   for (std::size_t t = 0; t + 1 < bins; ++t) {
     below += histogram[t];
     belowWeighted += static_cast<double>(t) * histogram[t];
@@ -139,11 +141,24 @@ double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi
     const double between = below * above * difference * difference;
     if (between > best) {
       best = between;
-      split = t;
+      first = last = t;
+    } else if (between == best && last && t == *last + 1 && histogram[t] == 0) {
+      last = t;
     }
   }
-  if (!split) return 0.5 * (lo + hi);
-  return lo + static_cast<double>(*split + 1) * (hi - lo) / static_cast<double>(bins);
+  if (!first) return 0.5 * (lo + hi);
+  const double edge = 0.5 * static_cast<double>(*first + *last) + 1;  // in bins
+  return lo + edge * (hi - lo) / static_cast<double>(bins);
+}
+
+int valueDecimals(double range) {
+  if (!(range > 0) || !std::isfinite(range)) return 0;
+  return std::clamp(2 - static_cast<int>(std::floor(std::log10(range))), 0, 12);
+}
+
+double valueStep(double range) {
+  if (!(range > 0) || !std::isfinite(range)) return 1;
+  return std::pow(10.0, std::floor(std::log10(range)) - 2);
 }
 
 std::vector<WindowLevelPreset> fileWindowLevelPresets(const std::vector<SourceWindow>& windows) {

@@ -37,10 +37,19 @@ WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, 
 // Slicer's Segment Editor and ITK-SNAP), the value that best splits them into two classes, so
 // the surface is the boundary of the object against its background. `histogram` counts the
 // values in equal bins over [lo, hi]; the threshold is the upper edge of the last bin of the
-// lower class (the classes are bins 0..t and t+1..). An empty histogram, or one with a single
+// lower class (the classes are bins 0..t and t+1..), or, where empty bins follow that one,
+// the middle of the gap before the upper class. An empty histogram, or one with a single
 // occupied bin, gives the middle of the range. A CT's isosurface opens at
 // transfer::kDefaultCtIsoValueHu instead.
 double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi);
+
+// Decimals enough to tell values apart on a label or control spanning `range` of the volume's
+// unit, about a thousandth of it: none from 100 up (HU), one from 10, two from 1, three from
+// 0.1 and so on (an ADC map's 0.003: five); none for a range that is not a positive number.
+int valueDecimals(double range);
+// The step of a window/level or value control spanning `range`: the power of ten about a
+// hundredth of it (10 for CT's 4095 HU, 0.001 for values in [0, 0.44]).
+double valueStep(double range);
 
 // The windows a volume's file names (DICOM's WindowCenter / WindowWidth, VolumeInfo::windows),
 // as presets named "file", "file 2", ... in the file's order, their source its explanation

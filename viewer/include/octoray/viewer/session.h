@@ -19,6 +19,7 @@
 #include "octoray/core/geometry.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/working_set.h"
+#include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function.h"
 
 namespace octoray::viewer {
@@ -84,7 +85,7 @@ struct Session {
   std::string preset = "bone";         // name of the preset `tf` started from
   transfer::TransferFunction tf;       // as edited
   gpu::RaycastMode mode = gpu::RaycastMode::Dvr;
-  double isoValue = 300;               // in the volume's unit: 300 HU for a CT (App opens others at theirs)
+  double isoValue = transfer::kDefaultCtIsoValueHu;  // in the volume's unit (App opens others at theirs)
   double lodPixels = 1.0;              // working-set refinement target (pixels per voxel)
   double stepFactor = 1.0;             // x the renderer's default step
   double earlyTermination = 0.99;
