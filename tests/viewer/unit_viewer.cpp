@@ -508,12 +508,23 @@ TEST(ViewerPresets, AutoWindowLevelSpansTheMiddleOfTheValues) {
   EXPECT_NEAR(wl.level - 0.5 * wl.window, 200 + 10 * 10.02 / 210, 1e-9);
   EXPECT_NEAR(wl.level + 0.5 * wl.window, 700 - 10 * 10.02 / 210, 1e-9);
   EXPECT_NEAR(wl.level, 450, 1e-9);
-  // A constant volume: one bin wide, never zero. No samples: the whole range.
+  // Nearly every value in one bin (a mask's zeros; a constant volume, whose range is one
+  // unit): the whole range, never zero. No samples: the whole range too.
   std::vector<int> one(256, 0);
   one[40] = 5000;
   wl = autoWindowLevel(one, -1024, 3071);
-  EXPECT_NEAR(wl.window, 4095.0 / 256, 1e-9);
-  EXPECT_GT(wl.window, 0);
+  EXPECT_EQ(wl.window, 4095);
+  EXPECT_EQ(wl.level, 1023.5);
+  std::vector<int> mask(256, 0);
+  mask[0] = 99950;
+  mask[255] = 50;
+  wl = autoWindowLevel(mask, 0, 1);
+  EXPECT_EQ(wl.window, 1);
+  EXPECT_EQ(wl.level, 0.5);
+  EXPECT_EQ(windowGrey(0, {wl.window, wl.level}), 0);
+  EXPECT_EQ(windowGrey(1, {wl.window, wl.level}), 255);
+  wl = autoWindowLevel(one, 7, 8);
+  EXPECT_EQ(wl.window, 1);
   wl = autoWindowLevel(std::vector<int>(256, 0), 127, 2145);
   EXPECT_EQ(wl.window, 2018);
   EXPECT_EQ(wl.level, 1136);

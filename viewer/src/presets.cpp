@@ -114,7 +114,14 @@ WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, 
     return hi;
   };
   const double low = percentile(0.001), high = percentile(0.999);
-  p.window = std::max(high - low, binWidth);
+  if (high - low < binWidth) {
+    // At least 99.8 % of the values in one bin (a mask's zeros): the percentiles say nothing,
+    // so the whole range, which shows the rest (a 0/1 mask: W 1 / L 0.5, zeros black).
+    p.window = hi - lo;
+    p.level = 0.5 * (lo + hi);
+    return p;
+  }
+  p.window = high - low;
   p.level = 0.5 * (low + high);
   return p;
 }

@@ -27,8 +27,9 @@ std::filesystem::path defaultWindowLevelPresetsPath();
 // Automatic window/level, named "auto" (Weasis' key 0; Slicer's auto W/L takes the same
 // percentiles): the window spans the 0.1st to the 99.9th percentile of the volume's values and
 // the level is its centre. `histogram` counts the values in equal bins over [lo, hi]; a
-// percentile is interpolated linearly inside its bin. The window is at least one bin wide; an
-// empty histogram gives the whole range. Values and window are in the volume's unit, whatever
+// percentile is interpolated linearly inside its bin. Where they lie less than a bin apart
+// (nearly every value the same, as a mask's zeros), and for an empty histogram, the window is
+// the whole range. Values and window are in the volume's unit, whatever
 // it is: this is what a volume without Hounsfield units (MR, or a file without units) opens with.
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi);
 
