@@ -36,8 +36,7 @@ void App::computeHistogram() {
     --level;
   }
   histLo_ = store->node(0).minValue;
-  histHi_ = store->node(0).maxValue;
-  if (!(histHi_ > histLo_)) histHi_ = histLo_ + 1;  // a constant volume: one unit, never an empty range
+  histHi_ = histogramTop(histLo_, store->node(0).maxValue);
   histogram_.assign(256, 0);
   const int B = layout.brickSize(), A = layout.border(), E = layout.storedEdge();
   const int64_t first = layout.levelNodeOffset(level), last = layout.levelNodeOffset(level + 1);
@@ -54,8 +53,7 @@ void App::computeHistogram() {
             if (key.brick[0] * B + x >= dims[0]) break;
             const std::size_t i = (static_cast<std::size_t>(z + A) * E + (y + A)) * E + (x + A);
             const double v = store->physical(b.format == volume::SampleFormat::UInt16 ? b.u16[i] : b.f32[i]);
-            const int bin = std::clamp(static_cast<int>((v - histLo_) / (histHi_ - histLo_) * 256), 0, 255);
-            ++histogram_[static_cast<std::size_t>(bin)];
+            ++histogram_[static_cast<std::size_t>(histogramBin(v, histLo_, histHi_, 256))];
           }
         }
       }

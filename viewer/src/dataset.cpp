@@ -17,6 +17,7 @@
 #include "octoray/core/paths.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/volume/store_builder.h"
+#include "octoray/viewer/presets.h"
 #include "octoray/volume/store_reader.h"
 
 namespace octoray::viewer {
@@ -161,11 +162,10 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
     hi = std::max(hi, v);
   });
   if (!(hi >= lo)) return {};
-  if (!(hi > lo)) hi = lo + 1;  // as the store's histogram: never an empty range
+  hi = histogramTop(lo, hi);
   std::vector<int> counts(static_cast<std::size_t>(bins), 0);
   forEachSample([&](double v) {
-    const int bin = std::clamp(static_cast<int>((v - lo) / (hi - lo) * bins), 0, bins - 1);
-    ++counts[static_cast<std::size_t>(bin)];
+    ++counts[static_cast<std::size_t>(histogramBin(v, lo, hi, bins))];
   });
   return counts;
 }

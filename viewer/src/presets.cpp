@@ -88,6 +88,12 @@ std::filesystem::path defaultWindowLevelPresetsPath() {
   return std::filesystem::path(OCTORAY_VIEWER_SOURCE_DIR) / "presets" / "window-level.json";
 }
 
+double histogramTop(double lo, double hi) { return hi > lo ? hi : lo + 1; }
+
+int histogramBin(double value, double lo, double hi, int bins) {
+  return std::clamp(static_cast<int>((value - lo) / (hi - lo) * bins), 0, bins - 1);
+}
+
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi) {
   WindowLevelPreset p;
   p.name = "auto";

@@ -24,6 +24,13 @@ void saveWindowLevelPresets(const std::vector<WindowLevelPreset>& presets,
 // $OCTORAY_WL_PRESETS when set, else viewer/presets/window-level.json of the source tree.
 std::filesystem::path defaultWindowLevelPresetsPath();
 
+// The histograms the automatic window and isovalue read, the store's (App::computeHistogram)
+// and the import preview's (PreviewVolume::histogram), bin values alike: equal bins over the
+// values' range [lo, histogramTop(lo, hi)], values outside it counted in the end bins. An
+// empty range (a constant volume) is taken as one unit wide.
+double histogramTop(double lo, double hi);
+int histogramBin(double value, double lo, double hi, int bins);
+
 // Automatic window/level, named "auto" (Weasis' key 0; Slicer's auto W/L takes the same
 // percentiles): the window spans the 0.1st to the 99.9th percentile of the volume's values and
 // the level is its centre. `histogram` counts the values in equal bins over [lo, hi]; a
