@@ -5,7 +5,8 @@
 // a temporary store first for the GPU path (border 2, removed afterwards).
 //   octoray-render PATH -o OUT.png [--exr OUT.exr] --mode dvr|iso|mip
 //     [--preset NAME | --tf FILE [--tf-name NAME]]  [--iso HU]  --size WxH
-//     (without --preset/--tf: transfer/defaults.h's default for the mode; CT iso: 300 HU)
+//     (without --preset/--tf: transfer/defaults.h's default for the mode; without --iso:
+//     300 HU for CT, Otsu's threshold of the values otherwise)
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
 //     [--gpu [--lod-pixels F] [--frames N --orbit DEG] [--pool-mib N] [--gradient-pool]
 //      [--cache-mib N] [--upload-mib-per-frame N] [--visibility rays|occlusion|both|none]
@@ -53,6 +54,7 @@
 #include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_format.h"
 #include "octoray/volume/store_reader.h"
+#include "octoray/volume/value_histogram.h"
 #include "octoray_render/render_tool.h"
 
 namespace octoray::render_tool {
@@ -88,6 +90,23 @@ struct ValueKind {
   double lo = std::numeric_limits<double>::quiet_NaN(), hi = lo;
 };
 
+// Visits the finite values of a volume that is not a store, 64 MiB of slices at a time.
+template <typename Visit>
+void forEachValue(const std::string& path, Visit visit) {
+  const auto source = openVolume(path);
+  const VolumeInfo& info = source->info();
+  const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
+  std::vector<float> buffer;
+  for (int64_t k = 0; k < info.dims[2]; k += slab) {
+    const int64_t n = std::min(slab, info.dims[2] - k);
+    buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
+    source->readSlab(k, n, buffer);
+    for (const float v : buffer) {
+      if (std::isfinite(v)) visit(static_cast<double>(v));
+    }
+  }
+}
+
 ValueKind valueKind(const std::string& path) {
   ValueKind kind;
   if (volume::isStoreFile(path)) {
@@ -97,37 +116,49 @@ ValueKind valueKind(const std::string& path) {
     kind.hi = store.node(0).maxValue;
     return kind;
   }
-  const auto source = openVolume(path);
-  const VolumeInfo& info = source->info();
+  const VolumeInfo info = openVolume(path)->info();
   kind.lo = std::numeric_limits<double>::infinity();
   kind.hi = -kind.lo;
-  const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
-  std::vector<float> buffer;
-  for (int64_t k = 0; k < info.dims[2]; k += slab) {
-    const int64_t n = std::min(slab, info.dims[2] - k);
-    buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
-    source->readSlab(k, n, buffer);
-    for (const float v : buffer) {
-      if (!std::isfinite(v)) continue;
-      kind.lo = std::min(kind.lo, static_cast<double>(v));
-      kind.hi = std::max(kind.hi, static_cast<double>(v));
-    }
-  }
+  forEachValue(path, [&](double v) {
+    kind.lo = std::min(kind.lo, v);
+    kind.hi = std::max(kind.hi, v);
+  });
   kind.hounsfield = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, kind.lo, &kind.guessed);
   return kind;
 }
 
-// Without --preset and --tf: the default of transfer/defaults.h for the mode and the volume,
-// and for a CT isosurface without --iso, 300 HU. Says on stderr what it chose.
+// The isovalue the viewer opens a volume without HU at: Otsu's threshold
+// (transfer::automaticIsoValue) of a 256-bin histogram of its values. A store's is
+// volume::storeHistogram, the viewer's own; another input's counts every value, the same
+// where the volume has at most 4 Mi samples and 256 bricks of 32^3 (above that the viewer
+// counts a coarser level's means, so the two may differ by a bin or so).
+double otsuIsoValue(const std::string& path, const ValueKind& kind) {
+  if (volume::isStoreFile(path)) {
+    const volume::ValueHistogram h = volume::storeHistogram(volume::StoreReader(path), 256);
+    if (!h.problem.empty()) throw Error(path, h.problem);
+    return transfer::automaticIsoValue(h.counts, h.lo, h.hi);
+  }
+  const double top = volume::histogramTop(kind.lo, kind.hi);
+  std::vector<int> counts(256, 0);
+  forEachValue(path, [&](double v) { ++counts[static_cast<std::size_t>(volume::histogramBin(v, kind.lo, top, 256))]; });
+  return transfer::automaticIsoValue(counts, kind.lo, top);
+}
+
+// Without --preset and --tf: the default of transfer/defaults.h for the mode and the volume.
+// For an isosurface without --iso: 300 HU for CT, Otsu's threshold of the values otherwise, as
+// the viewer opens it. Says on stderr what it chose.
 void resolveDefaults(Arguments& a) {
   const bool needTf = a.preset.empty() && a.tfPath.empty();
   const bool needIso = a.mode == "iso" && !a.iso;
   if (!needTf && !needIso) return;
   const ValueKind kind = valueKind(a.path);
-  if (needIso) {
-    if (!kind.hounsfield) throw Error(a.path, "--mode iso needs --iso VALUE (the volume is not CT)");
+  if (needIso && kind.hounsfield) {
     a.iso = transfer::kDefaultCtIsoValueHu;
     fmt::print(stderr, "octoray-render: no --iso: using {:g} HU (bone)\n", *a.iso);
+  } else if (needIso) {
+    a.iso = otsuIsoValue(a.path, kind);
+    fmt::print(stderr, "octoray-render: no --iso: using {:.9g}, Otsu's threshold of the values {:g}..{:g} "
+               "(not CT)\n", *a.iso, kind.lo, kind.hi);
   }
   if (needTf) {
     const transfer::DefaultMode mode = a.mode == "iso"   ? transfer::DefaultMode::Iso
@@ -567,7 +598,7 @@ int main(int argc, char** argv) {
   preset->excludes(tfFile);
   app.add_option("--tf-name", a.tfName, "which function of a --tf file holding several")
       ->needs(tfFile);
-  app.add_option("--iso", a.iso, "isovalue (HU) for --mode iso (CT default: 300 HU)");
+  app.add_option("--iso", a.iso, "isovalue for --mode iso, in the volume's unit (default: 300 HU for CT, Otsu's threshold of the values otherwise)");
   auto* size = app.add_option("--size", a.size, "image WxH")->capture_default_str();
   app.add_option("--azimuth", a.azimuth,
                  "degrees; 0 = from anterior, 90 = from the patient's left");

@@ -119,7 +119,7 @@ TEST_F(RenderTools, ModesAndErrors) {
 
 // Without --preset and --tf: CT gets the bone preset (DVR), a bone-coloured surface at 300 HU
 // (iso) and a grey ramp (MIP), each said on stderr; other values a grey ramp over their range,
-// and an isosurface of them needs --iso.
+// and an isosurface at Otsu's threshold of them, as the viewer opens it.
 TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
   const std::string render = toolPath("octoray-render").string();
   const std::vector<std::string> common{"--size", "48x40", "--azimuth", "30", "--reference"};
@@ -201,7 +201,7 @@ TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
   EXPECT_LE(brightest, expected + 1e-3);
   EXPECT_GE(brightest, expected - 0.1) << "maximum " << maximum << " HU";
 
-  // Values that are not CT (0..200, uint8): a grey ramp over them; iso needs a value.
+  // Values that are not CT (0..200, uint8): a grey ramp over them.
   {
     std::ofstream raw(dir / "u8.raw", std::ios::binary);
     for (int i = 0; i < 32 * 32 * 32; ++i) raw.put(static_cast<char>((i * 7) % 201));
@@ -211,9 +211,36 @@ TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
   const ProcessResult other = run({(dir / "u8.nhdr").string(), "-o", (dir / "u.png").string()});
   ASSERT_EQ(other.exitCode, 0) << other.err;
   EXPECT_NE(other.err.find("grey ramp over the values 0..200"), std::string::npos) << other.err;
-  const ProcessResult otherIso = run({(dir / "u8.nhdr").string(), "--mode", "iso", "-o", (dir / "u.png").string()});
-  EXPECT_EQ(otherIso.exitCode, 1);
-  EXPECT_NE(otherIso.err.find("needs --iso"), std::string::npos) << otherIso.err;
+
+  // Their isosurface without --iso: Otsu's threshold, the viewer's default. A ball of 180 in a
+  // background of 20 splits at the middle of the empty bins between them, 100, from the file
+  // and from a store of it alike; the picture is the one --iso 100 gives.
+  {
+    std::ofstream raw(dir / "ball.raw", std::ios::binary);
+    for (int k = 0; k < 32; ++k)
+      for (int j = 0; j < 32; ++j)
+        for (int i = 0; i < 32; ++i) {
+          const int r2 = (i - 16) * (i - 16) + (j - 16) * (j - 16) + (k - 16) * (k - 16);
+          raw.put(static_cast<char>(r2 <= 196 ? 180 : 20));
+        }
+  }
+  std::ofstream(dir / "ball.nhdr") << "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 32 32 32\n"
+                                      "spacings: 1 1 1\nencoding: raw\ndata file: ball.raw\n";
+  const std::string ballStore = (dir / "ball.octoray").string();
+  volume::buildStore(*openVolume((dir / "ball.nhdr").string()), ballStore, volume::BuildOptions{});
+  ASSERT_EQ(run({(dir / "ball.nhdr").string(), "--mode", "iso", "--iso", "100", "-o", (dir / "k.png").string(),
+                 "--exr", (dir / "k.exr").string()}).exitCode, 0);
+  const auto ball = image("k.exr");
+  double hit = 0;
+  for (std::size_t i = 3; i < ball.size(); i += 4) hit += ball[i] > 0.99f ? 1 : 0;
+  EXPECT_GT(hit, 48 * 40 * 0.1);
+  for (const std::string& input : {(dir / "ball.nhdr").string(), ballStore}) {
+    SCOPED_TRACE(input);
+    const ProcessResult otsu = run({input, "--mode", "iso", "-o", (dir / "o.png").string(), "--exr", (dir / "o.exr").string()});
+    ASSERT_EQ(otsu.exitCode, 0) << otsu.err;
+    EXPECT_NE(otsu.err.find("no --iso: using 100, Otsu's threshold of the values 20..180"), std::string::npos) << otsu.err;
+    EXPECT_EQ(image("o.exr"), ball);
+  }
 }
 
 }  // namespace

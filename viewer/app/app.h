@@ -356,12 +356,12 @@ class App {
   bool integerValues_ = true;  // every value of the volume is an integer (judged with the unit)
   bool isoChosenForDataset_ = false;  // the reader set the isovalue for this volume
   // The unit of the values the isovalue was set for ("HU": a CT's, kept for the next CT as a
-  // table window is; "auto": automaticIsoValue of the volume open; "": chosen for a volume
+  // table window is; "auto": transfer::automaticIsoValue of the volume open; "": chosen for a volume
   // without HU; "?": chosen before the volume's unit was known). A CT opened after any but
   // "HU" gets kDefaultCtIsoValueHu.
   std::string isoUnit_ = "HU";
   // The isovalue the volume opens with, unless the reader chose one: a CT keeps a CT's, else
-  // transfer::kDefaultCtIsoValueHu; a volume without HU gets automaticIsoValue of its histogram.
+  // transfer::kDefaultCtIsoValueHu; a volume without HU gets transfer::automaticIsoValue of its histogram.
   void applyAutomaticIsoValue();
   // The unit of the values the current window was set for ("HU": a CT window; "?": set before
   // the volume's unit was known; "file": a volume's own window, applied or chosen for it). A CT opened

@@ -11,6 +11,7 @@
 #include "octoray/core/error.h"
 #include "octoray/transfer/defaults.h"
 #include "octoray/transfer/transfer_function_io.h"
+#include "octoray/volume/value_histogram.h"
 
 namespace octoray::viewer {
 
@@ -19,49 +20,12 @@ namespace fs = std::filesystem;
 void App::computeHistogram() {
   const volume::StoreReader* store = dataset_ ? dataset_->store() : nullptr;
   if (!store) return;
-  const auto& layout = store->layout();
-  // The finest level of at most 4 Mi samples (the whole volume where it is that small), as
-  // many as the preview's histogram reads, and of at most 256 bricks (each is decoded whole, so
-  // a thin volume's level of 4 Mi samples could mean thousands): its bricks are read once,
-  // here, when the store is ready. The 1 mm head (512 x 512 x 140) is read at 128 x 128 x 35,
-  // the 5 mm one (512 x 512 x 28) at 256 x 256 x 14 (64 bricks, 29 ms), a 640^3 phantom at
-  // 160^3 (125 bricks, 40 ms).
-  constexpr auto kMaxSamples = static_cast<int64_t>(PreviewVolume::kHistogramSamples);
-  constexpr int64_t kMaxBricks = 256;
-  int level = layout.leafLevel();
-  while (level > 0) {
-    const auto& d = layout.levelDims(level);
-    const int64_t bricks = layout.levelNodeOffset(level + 1) - layout.levelNodeOffset(level);
-    if (d[0] * d[1] * d[2] <= kMaxSamples && bricks <= kMaxBricks) break;
-    --level;
-  }
-  histLo_ = store->node(0).minValue;
-  histHi_ = histogramTop(histLo_, store->node(0).maxValue);
-  histogram_.assign(256, 0);
-  const int B = layout.brickSize(), A = layout.border(), E = layout.storedEdge();
-  const int64_t first = layout.levelNodeOffset(level), last = layout.levelNodeOffset(level + 1);
-  for (int64_t id = first; id < last; ++id) {
-    try {
-      const volume::Brick b = store->readBrick(id);
-      const auto key = layout.nodeKey(id);
-      const auto& dims = layout.levelDims(level);
-      for (int z = 0; z < B; ++z) {
-        if (key.brick[2] * B + z >= dims[2]) break;
-        for (int y = 0; y < B; ++y) {
-          if (key.brick[1] * B + y >= dims[1]) break;
-          for (int x = 0; x < B; ++x) {
-            if (key.brick[0] * B + x >= dims[0]) break;
-            const std::size_t i = (static_cast<std::size_t>(z + A) * E + (y + A)) * E + (x + A);
-            const double v = store->physical(b.format == volume::SampleFormat::UInt16 ? b.u16[i] : b.f32[i]);
-            ++histogram_[static_cast<std::size_t>(histogramBin(v, histLo_, histHi_, 256))];
-          }
-        }
-      }
-    } catch (const Error& e) {
-      messages.push_back(e.what());
-      break;
-    }
-  }
+  // Read once, here, when the store is ready (volume::storeHistogram says which level).
+  volume::ValueHistogram h = volume::storeHistogram(*store, 256);
+  if (!h.problem.empty()) messages.push_back(h.problem);
+  histogram_ = std::move(h.counts);
+  histLo_ = h.lo;
+  histHi_ = h.hi;
 }
 
 // ---- model operations ----------------------------------------------------------------------
@@ -86,7 +50,7 @@ void App::applyAutomaticWindowLevel(const std::vector<int>& counts, double lo, d
 void App::applyAutomaticIsoValue() {
   if (isoChosenForDataset_ || histogram_.empty()) return;
   if (valueUnit_ != "HU") {
-    session.isoValue = automaticIsoValue(histogram_, histLo_, histHi_);
+    session.isoValue = transfer::automaticIsoValue(histogram_, histLo_, histHi_);
     isoUnit_ = "auto";
   } else if (isoUnit_ != "HU") {
     session.isoValue = transfer::kDefaultCtIsoValueHu;  // a CT after an isovalue for other values

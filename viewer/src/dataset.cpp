@@ -19,6 +19,7 @@
 #include "octoray/volume/store_builder.h"
 #include "octoray/viewer/presets.h"
 #include "octoray/volume/store_reader.h"
+#include "octoray/volume/value_histogram.h"
 
 namespace octoray::viewer {
 namespace fs = std::filesystem;
@@ -162,10 +163,10 @@ std::vector<int> PreviewVolume::histogram(int bins, double& lo, double& hi) cons
     hi = std::max(hi, v);
   });
   if (!(hi >= lo)) return {};
-  hi = histogramTop(lo, hi);
+  hi = volume::histogramTop(lo, hi);
   std::vector<int> counts(static_cast<std::size_t>(bins), 0);
   forEachSample([&](double v) {
-    ++counts[static_cast<std::size_t>(histogramBin(v, lo, hi, bins))];
+    ++counts[static_cast<std::size_t>(volume::histogramBin(v, lo, hi, bins))];
   });
   return counts;
 }

@@ -88,12 +88,6 @@ std::filesystem::path defaultWindowLevelPresetsPath() {
   return std::filesystem::path(OCTORAY_VIEWER_SOURCE_DIR) / "presets" / "window-level.json";
 }
 
-double histogramTop(double lo, double hi) { return hi > lo ? hi : lo + 1; }
-
-int histogramBin(double value, double lo, double hi, int bins) {
-  return std::clamp(static_cast<int>((value - lo) / (hi - lo) * bins), 0, bins - 1);
-}
-
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi) {
   WindowLevelPreset p;
   p.name = "auto";
@@ -130,38 +124,6 @@ WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, 
   p.window = high - low;
   p.level = 0.5 * (low + high);
   return p;
-}
-
-double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi) {
-  const std::size_t bins = histogram.size();
-  double total = 0, weighted = 0;
-  for (std::size_t b = 0; b < bins; ++b) {
-    total += histogram[b];
-    weighted += static_cast<double>(b) * histogram[b];
-  }
-  // Maximise the between-class variance w0 w1 (m0 - m1)^2 over the split after bin t, in bin
-  // units. Empty bins after the best split give the same classes, so the same variance: the
-  // threshold is the middle of that run of equal maxima (a 0/1 mask's is 0.5, not just above 0;
-  // OpenCV's THRESH_OTSU takes the first).
-  double below = 0, belowWeighted = 0, best = 0;
-  std::optional<std::size_t> first, last;
-  for (std::size_t t = 0; t + 1 < bins; ++t) {
-    below += histogram[t];
-    belowWeighted += static_cast<double>(t) * histogram[t];
-    const double above = total - below;
-    if (below == 0 || above == 0) continue;
-    const double difference = belowWeighted / below - (weighted - belowWeighted) / above;
-    const double between = below * above * difference * difference;
-    if (between > best) {
-      best = between;
-      first = last = t;
-    } else if (between == best && last && t == *last + 1 && histogram[t] == 0) {
-      last = t;
-    }
-  }
-  if (!first) return 0.5 * (lo + hi);
-  const double edge = 0.5 * static_cast<double>(*first + *last) + 1;  // in bins
-  return lo + edge * (hi - lo) / static_cast<double>(bins);
 }
 
 int valueDecimals(double range) {

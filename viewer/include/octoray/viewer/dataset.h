@@ -27,6 +27,7 @@
 #include "octoray/dicom/volume_source.h"
 #include "octoray/viewer/mpr.h"
 #include "octoray/volume/store_reader.h"
+#include "octoray/volume/value_histogram.h"
 
 namespace octoray::viewer {
 
@@ -55,8 +56,8 @@ class PreviewVolume {
   // The values of the slices shown so far, counted in `bins` equal bins over their range
   // [lo, hi] (what the auto window/level reads while a volume arrives); empty before any.
   // Where they hold more than kHistogramSamples, every n-th row in order, so that at most that
-  // many are read: the store's histogram reads as many (App::computeHistogram).
-  static constexpr std::size_t kHistogramSamples = std::size_t{1} << 22;
+  // many are read: the store's histogram reads as many (volume::storeHistogram), binned alike.
+  static constexpr auto kHistogramSamples = static_cast<std::size_t>(volume::kHistogramSamples);
   std::vector<int> histogram(int bins, double& lo, double& hi) const;
 
  private:

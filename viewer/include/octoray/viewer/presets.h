@@ -24,13 +24,6 @@ void saveWindowLevelPresets(const std::vector<WindowLevelPreset>& presets,
 // $OCTORAY_WL_PRESETS when set, else viewer/presets/window-level.json of the source tree.
 std::filesystem::path defaultWindowLevelPresetsPath();
 
-// The histograms the automatic window and isovalue read, the store's (App::computeHistogram)
-// and the import preview's (PreviewVolume::histogram), bin values alike: equal bins over the
-// values' range [lo, histogramTop(lo, hi)], values outside it counted in the end bins. An
-// empty range (a constant volume) is taken as one unit wide.
-double histogramTop(double lo, double hi);
-int histogramBin(double value, double lo, double hi, int bins);
-
 // Automatic window/level, named "auto" (Weasis' key 0; Slicer's auto W/L takes the same
 // percentiles): the window spans the 0.1st to the 99.9th percentile of the volume's values and
 // the level is its centre. `histogram` counts the values in equal bins over [lo, hi]; a
@@ -39,17 +32,6 @@ int histogramBin(double value, double lo, double hi, int bins);
 // the whole range. Values and window are in the volume's unit, whatever
 // it is: this is what a volume without Hounsfield units (MR, or a file without units) opens with.
 WindowLevelPreset autoWindowLevel(const std::vector<int>& histogram, double lo, double hi);
-
-// The isovalue a volume without Hounsfield units (MR, a file without units) opens with: Otsu's
-// threshold of its values (N. Otsu, IEEE Trans. SMC 9(1), 1979; the automatic threshold of
-// Slicer's Segment Editor and ITK-SNAP), the value that best splits them into two classes, so
-// the surface is the boundary of the object against its background. `histogram` counts the
-// values in equal bins over [lo, hi]; the threshold is the upper edge of the last bin of the
-// lower class (the classes are bins 0..t and t+1..), or, where empty bins follow that one,
-// the middle of the gap before the upper class. An empty histogram, or one with a single
-// occupied bin, gives the middle of the range. A CT's isosurface opens at
-// transfer::kDefaultCtIsoValueHu instead.
-double automaticIsoValue(const std::vector<int>& histogram, double lo, double hi);
 
 // Decimals enough to tell values apart on a label or control spanning `range` of the volume's
 // unit, about a thousandth of it: none from 100 up (HU), one from 10, two from 1, three from
