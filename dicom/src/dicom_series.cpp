@@ -130,20 +130,26 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
   }
 }
 
-// The display windows `ds` names, in order (PS3.3 C.11.2.1.2). The viewer shows them with
-// the standard's LINEAR function where the volume's values are integers and with LINEAR_EXACT
-// where they are not (they differ by half a unit). A pair that is not two finite numbers is
-// left out, and so is a width below 1 where the function is LINEAR (the default, which allows
-// none, C.11.2.1.2.1) or a width not above 0 where it is LINEAR_EXACT or SIGMOID (which allow
-// any above 0, C.11.2.1.3). `problem` says so, where it is still empty; so does a SIGMOID
-// function, whose windows are still shown, linear. A window named twice is kept once.
+// The display windows `ds` names, in order (PS3.3 C.11.2.1.2), each with the VOI LUT function
+// `ds` declares (VOILUTFunction, C.11.2.1.3), which the viewer follows. A pair that is not two
+// finite numbers is left out, and so is a width below 1 where the function is LINEAR (the
+// default, which allows none, C.11.2.1.2.1) or a width not above 0 where it is LINEAR_EXACT or
+// SIGMOID (which allow any above 0, C.11.2.1.3). A function that is not one of those three
+// defined terms is taken as none (LINEAR). `problem` says each of these, where it is still
+// empty. A window named twice is kept once.
 std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& problem) {
   const std::string centerText = stringValue(ds, kWindowCenter), widthText = stringValue(ds, kWindowWidth);
   if (centerText.empty() && widthText.empty()) return {};
   const auto say = [&](std::string text) {
     if (problem.empty()) problem = std::move(text);
   };
-  const std::string function = stringValue(ds, kVoiLutFunction);
+  std::string function = stringValue(ds, kVoiLutFunction);
+  if (!function.empty() && function != "LINEAR" && function != "LINEAR_EXACT" && function != "SIGMOID") {
+    say(fmt::format("VOILUTFunction '{}' is not LINEAR, LINEAR_EXACT or SIGMOID: its windows are "
+                    "taken as LINEAR",
+                    function));
+    function.clear();
+  }
   const auto centers = numberValues(ds, kWindowCenter);
   const auto widths = numberValues(ds, kWindowWidth);
   if (!centers || !widths) {
@@ -174,13 +180,13 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
     w.center = (*centers)[i];
     w.width = (*widths)[i];
     if (i < explanations.size()) w.explanation = explanations[i];
+    w.function = function;
     // Philips writes its one window twice ("40\\40", "80\\80"): a repeat is one window.
     const bool repeat = std::any_of(windows.begin(), windows.end(), [&](const SourceWindow& o) {
-      return o.center == w.center && o.width == w.width && o.explanation == w.explanation;
+      return o.center == w.center && o.width == w.width && o.explanation == w.explanation && o.function == w.function;
     });
     if (!repeat) windows.push_back(std::move(w));
   }
-  if (function == "SIGMOID" && !windows.empty()) say("VOILUTFunction SIGMOID: its windows are shown as linear ones");
   return windows;
 }
 
@@ -645,7 +651,7 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
     s.multiFrame = s.multiFrame || h.multiFrame;
     for (const std::vector<SourceWindow>& windows : h.frameWindows) {
       std::string named;
-      for (const SourceWindow& w : windows) named += fmt::format("{}|{}|{}\\", w.center, w.width, w.explanation);
+      for (const SourceWindow& w : windows) named += fmt::format("{}|{}|{}|{}\\", w.center, w.width, w.explanation, w.function);
       auto& choices = windowChoices[key];
       auto [choice, first] = choices.try_emplace(named);
       if (first) {

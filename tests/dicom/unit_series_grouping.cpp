@@ -145,7 +145,7 @@ TEST(SeriesWindows, AnEnhancedObjectsFramesVoteWithTheirOwnFrameVoiLut) {
 // (which allows none, PS3.3 C.11.2.1.2.1) or not above 0 where it is LINEAR_EXACT (which
 // allows any above 0), is left out with a warning naming the file; the series is read as
 // before. A LINEAR_EXACT window narrower than 1 is kept (the viewer shows it on values that
-// are not integers). SIGMOID is said; its windows are shown as linear ones.
+// are not integers). A VOILUTFunction that is not a defined term is said, and taken as none.
 TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
   struct Case {
     const char* name;
@@ -162,7 +162,8 @@ TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
       {"junk", {{kCenter, "forty"}, {kWidth, "80"}}, 0,
        "WindowCenter 'forty' / WindowWidth '80' are not finite numbers"},
       {"uneven", {{kCenter, "40\\300"}, {kWidth, "80"}}, 1, "WindowCenter has 2 values and WindowWidth 1"},
-      {"sigmoid", {{kCenter, "40"}, {kWidth, "80"}, {kFunction, "SIGMOID"}}, 1, "SIGMOID"},
+      {"undefined-function", {{kCenter, "40"}, {kWidth, "80"}, {kFunction, "LOG"}}, 1,
+       "VOILUTFunction 'LOG' is not LINEAR, LINEAR_EXACT or SIGMOID: its windows are taken as LINEAR"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -178,6 +179,27 @@ TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
     EXPECT_NE(w.info.warnings[0].find(c.warning), std::string::npos) << w.info.warnings[0];
     EXPECT_EQ(w.info.warnings[0].rfind(w.dir.string() + "/", 0), 0u) << w.info.warnings[0];  // names the file
     EXPECT_EQ(w.info.dims[2], 3);
+  }
+}
+
+// Each window carries the VOI LUT function its file declares (VOILUTFunction), for the viewer
+// to show it with: the defined term as written, "" where the file declares none; an undefined
+// term is taken as none.
+TEST(SeriesWindows, EachWindowCarriesTheFunctionItsFileDeclares) {
+  for (const auto& [declared, kept] : {std::pair<std::string, std::string>{"SIGMOID", "SIGMOID"},
+                                       {"LINEAR_EXACT", "LINEAR_EXACT"},
+                                       {"LINEAR", "LINEAR"},
+                                       {"", ""},
+                                       {"LOG", ""}}) {
+    SCOPED_TRACE(declared);
+    std::vector<std::pair<DicomTag, std::string>> values = {{kCenter, "40\\-600"}, {kWidth, "80\\1500"}};
+    if (!declared.empty()) values.push_back({kFunction, declared});
+    const WindowedSeries w = writeWithWindows("windows-function-" + (declared.empty() ? std::string("none") : declared),
+                                              {values, values, values});
+    ASSERT_EQ(w.info.windows.size(), 2u);
+    EXPECT_EQ(w.info.windows[0].function, kept);
+    EXPECT_EQ(w.info.windows[1].function, kept);
+    EXPECT_EQ(w.info.windows[1].width, 1500);
   }
 }
 

@@ -93,6 +93,16 @@ def window_grey_exact(values, window, level):
     return np.clip(g, 0, 255).astype(np.uint8)
 
 
+def window_grey_sigmoid(values, window, level):
+    """DICOM PS3.3 C.11.2.1.3.1 SIGMOID VOI LUT to 0..255: 255 / (1 + exp(-4 (x - c) / w)),
+    rounded half up; NaN to 0."""
+    c, w = float(level), float(window)
+    with np.errstate(over="ignore"):
+        g = np.floor(255.0 / (1.0 + np.exp(-4.0 * (values - c) / w)) + 0.5)
+    g = np.where(np.isnan(values), 0, g)
+    return np.clip(g, 0, 255).astype(np.uint8)
+
+
 def window_grey(values, window, level):
     """DICOM PS3.3 C.11.2.1.2.1 linear VOI LUT to 0..255, rounded half up; NaN to 0."""
     c, w = float(level), max(1.0, float(window))

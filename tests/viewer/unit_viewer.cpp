@@ -143,6 +143,27 @@ TEST(ViewerMpr, WindowGreyLinearExactTakesAnyPositiveWindow) {
   EXPECT_EQ(windowGrey(60.0, WindowLevel{80, 40}, exact), 191);  // 0.75 * 255 = 191.25
 }
 
+// SIGMOID (PS3.3 C.11.2.1.3.1): 255 / (1 + exp(-4 (x - level) / window)), rounded; level
+// mid-grey, no clipping at level +- window/2.
+TEST(ViewerMpr, WindowGreySigmoidRollsOffInsteadOfClipping) {
+  const WindowLevel wl{80, 40};
+  const VoiFunction sigmoid = VoiFunction::Sigmoid;
+  EXPECT_EQ(windowGrey(40.0, wl, sigmoid), 128);   // 127.5, half up
+  EXPECT_EQ(windowGrey(80.0, wl, sigmoid), 225);   // 255 / (1 + e^-2) = 224.60
+  EXPECT_EQ(windowGrey(0.0, wl, sigmoid), 30);     // 255 / (1 + e^2) = 30.40
+  EXPECT_EQ(windowGrey(60.0, wl, sigmoid), 186);   // 255 / (1 + e^-1) = 186.42
+  EXPECT_EQ(windowGrey(-1000.0, wl, sigmoid), 0);  // e^50: 255 / huge
+  EXPECT_EQ(windowGrey(3000.0, wl, sigmoid), 255);
+  EXPECT_EQ(windowGrey(std::nan(""), wl, sigmoid), 0);
+  // Where LINEAR clips at level +- window/2, SIGMOID still separates values beyond it.
+  EXPECT_EQ(windowGrey(80.0, wl), 255);
+  EXPECT_EQ(windowGrey(100.0, wl), 255);
+  EXPECT_LT(windowGrey(80.0, wl, sigmoid), windowGrey(100.0, wl, sigmoid));
+  EXPECT_STREQ(voiFunctionName(sigmoid), "SIGMOID");
+  EXPECT_STREQ(voiFunctionName(VoiFunction::LinearExact), "LINEAR_EXACT");
+  EXPECT_STREQ(voiFunctionName(VoiFunction::Linear), "LINEAR");
+}
+
 TEST(ViewerMpr, SlicesOfALinearVolumeAreExactAndNeverBlankWhileLoading) {
   const std::string path = buildLinearStore("viewer-linear");
   const volume::StoreReader store(path);
@@ -469,7 +490,7 @@ TEST(ViewerPresets, FieldsOfTheWrongTypeAreRefusedByName) {
 // window its width and the level its center, the explanation in the source; none, none.
 TEST(ViewerPresets, TheFilesWindowsArePresetsInItsOrder) {
   EXPECT_TRUE(fileWindowLevelPresets({}).empty());
-  const auto presets = fileWindowLevelPresets({{40, 80, ""}, {-600, 1500, "LUNG"}, {300, 1500, "BONE"}});
+  const auto presets = fileWindowLevelPresets({{40, 80, "", ""}, {-600, 1500, "LUNG", ""}, {300, 1500, "BONE", ""}});
   ASSERT_EQ(presets.size(), 3u);
   EXPECT_EQ(presets[0].name, "file");
   EXPECT_EQ(presets[1].name, "file 2");

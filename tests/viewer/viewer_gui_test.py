@@ -16,7 +16,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from dicom_oracle import DicomVolume, window_grey, window_grey_exact  # noqa: E402
+from dicom_oracle import DicomVolume, window_grey, window_grey_exact, window_grey_sigmoid  # noqa: E402
 import orthanc  # noqa: E402
 
 BIN = os.environ.get("OCTORAY_BIN", "build/bin")
@@ -168,16 +168,17 @@ class ViewerGui(unittest.TestCase):
         os.makedirs(d, exist_ok=True)
         return Viewer(d)
 
-    def assert_mpr_matches(self, volume, shot, state, view, wl=None, label="", exact=False):
+    def assert_mpr_matches(self, volume, shot, state, view, wl=None, label="", function="LINEAR"):
         """The view's pixels equal the reference slice through the plane the viewer reports,
-        in DICOM's LINEAR VOI function (LINEAR_EXACT where `exact`)."""
+        in DICOM's VOI function `function` (LINEAR, LINEAR_EXACT or SIGMOID)."""
         v = state["views"][view]
         self.assertTrue(v["complete"], f"{label}{view}: slice still loading")
         plane = v["plane"]
         self.assertEqual([plane["width"], plane["height"]], v["rect"][2:])
         expected_values = volume.plane_values(plane)
         w = wl or state["session"]["windowLevel"]
-        expected = (window_grey_exact if exact else window_grey)(expected_values, w["window"], w["level"])
+        grey = {"LINEAR": window_grey, "LINEAR_EXACT": window_grey_exact, "SIGMOID": window_grey_sigmoid}[function]
+        expected = grey(expected_values, w["window"], w["level"])
         got = crop(shot, v["rect"])
         self.assertTrue(np.all(got[:, :, 0] == got[:, :, 1]) and np.all(got[:, :, 1] == got[:, :, 2]),
                         f"{label}{view}: not grey (overlays drawn?)")
@@ -553,7 +554,7 @@ class ViewerGui(unittest.TestCase):
         self.assertLess(mpr["session"]["windowLevel"]["window"], 1)
         oracle = DicomVolume(os.path.join(PHILIPS, "S21570/S2010"))
         oracle.values = values.astype(np.float64)
-        self.assert_mpr_matches(oracle, load_png(vw.path("mpr.png")), mpr, "axial", label="float MHD: ", exact=True)
+        self.assert_mpr_matches(oracle, load_png(vw.path("mpr.png")), mpr, "axial", label="float MHD: ", function="LINEAR_EXACT")
         state = load_json(vw.path("iso.png.json"))
         self.assertEqual(state["dataset"]["unit"], "")
         iso = state["session"]["isoValue"]
@@ -617,6 +618,12 @@ class ViewerGui(unittest.TestCase):
         os.makedirs(folder, exist_ok=True)
         shutil.copy(mr, folder)
         named = pydicom.dcmread(mr, stop_before_pixels=True)
+        # The same MR declaring the SIGMOID VOI LUT function for its window.
+        sigmoid = vw.path("mr-sigmoid")
+        os.makedirs(sigmoid, exist_ok=True)
+        ds = pydicom.dcmread(mr)
+        ds.VOILUTFunction = "SIGMOID"
+        ds.save_as(os.path.join(sigmoid, "MR_small.dcm"))
         two = vw.path("two-windows")
         # Large enough that its import is still reading when a script's next step runs.
         p = run([os.path.join(BIN, "octoray-sample-series"), two, "--size", "256x256x48", "--seed", "7"])
@@ -642,9 +649,11 @@ class ViewerGui(unittest.TestCase):
             *open_then(nifti, {"type": "dump-state", "path": vw.path("nifti-after-chosen.json")}),
             *open_then(self.head_store, {"type": "screenshot", "path": vw.path("head-own.png")}),
             *open_then(nifti, {"type": "dump-state", "path": vw.path("nifti.json")}),
+            *open_then(sigmoid, {"type": "screenshot", "path": vw.path("mr-sigmoid.png")}),
         ])
         state = load_json(vw.path("mr.png.json"))
         self.assertEqual(state["dataset"]["unit"], "")
+        self.assertEqual(state["dataset"]["voiFunction"], "LINEAR")
         wl = state["session"]["windowLevel"]
         self.assertEqual((wl["window"], wl["level"], wl["preset"]),
                          (float(named.WindowWidth), float(named.WindowCenter), "file"))
@@ -679,6 +688,20 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(state["dataset"]["fileWindows"], [])
         self.assertEqual(state["dataset"]["unit"], "HU")
         self.assertEqual(state["session"]["windowLevel"]["preset"], "brain")
+        # The MR whose file declares SIGMOID: its window, shown with that function (pixel by
+        # pixel against pydicom's values through the standard's sigmoid), not LINEAR.
+        state = load_json(vw.path("mr-sigmoid.png.json"))
+        self.assertEqual(state["dataset"]["voiFunction"], "SIGMOID")
+        wl = state["session"]["windowLevel"]
+        self.assertEqual((wl["window"], wl["level"], wl["preset"]),
+                         (float(named.WindowWidth), float(named.WindowCenter), "file"))
+        sigmoid_shot = load_png(vw.path("mr-sigmoid.png"))
+        self.assert_mpr_matches(DicomVolume(sigmoid), sigmoid_shot, state, "axial", label="MR, SIGMOID: ",
+                                function="SIGMOID")
+        linear_shot = load_png(vw.path("mr.png"))
+        axial = state["views"]["axial"]["rect"]
+        self.assertGreater(int(np.count_nonzero(crop(sigmoid_shot, axial) != crop(linear_shot, axial))), 500,
+                           "the SIGMOID picture is the LINEAR one")
         # Named before they are known: --wl "file 2" on a store of that series, and a script's
         # wl-preset "file 2" right after opening the folder, which is still being imported.
         two_store = vw.path("two.octoray")

@@ -151,7 +151,7 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
     options.brickSize = 16;
     options.format = BuildOptions::Format::Float32;
     options.sourceContentHash = "0123456789abcdef";
-    if (integer) volume.setWindows({{40, 80, ""}, {-600, 1500, "LUNG"}});
+    if (integer) volume.setWindows({{40, 80, "", ""}, {-600, 1500, "LUNG", "SIGMOID"}});
     const std::string path = (dir / (integer ? "hu.octoray" : "plain.octoray")).string();
     buildStore(volume, path, options);
     const StoreReader store(path);
@@ -166,9 +166,11 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
       EXPECT_EQ(store.source().windows[0].center, 40);
       EXPECT_EQ(store.source().windows[0].width, 80);
       EXPECT_EQ(store.source().windows[0].explanation, "");
+      EXPECT_EQ(store.source().windows[0].function, "");
       EXPECT_EQ(store.source().windows[1].center, -600);
       EXPECT_EQ(store.source().windows[1].width, 1500);
       EXPECT_EQ(store.source().windows[1].explanation, "LUNG");
+      EXPECT_EQ(store.source().windows[1].function, "SIGMOID");
     }
   }
   for (const char* provenance :
@@ -187,7 +189,7 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
   {
     MemoryVolume latin1({16, 16, 16}, [](int64_t i, int64_t, int64_t) { return static_cast<float>(i); });
     latin1.setDescription("Sch\xe4" "del");
-    latin1.setWindows({{40, 80, "Sch\xe4" "del"}});
+    latin1.setWindows({{40, 80, "Sch\xe4" "del", ""}});
     BuildOptions options;
     options.brickSize = 16;
     const std::string path = (dir / "latin1.octoray").string();
@@ -201,11 +203,17 @@ TEST(StoreBuild, ProvenanceSourceFieldsComeBackAndOtherTypesAreEmpty) {
   const StoreSource windows = parseStoreSource(
       R"({"source": {"windows": [{"center": 40, "width": 80}, {"center": "40", "width": 80}, 7,
           {"center": 1, "width": 0}, {"center": 1, "width": -5}, {"center": null, "width": 3},
-          {"center": -600, "width": 1500, "explanation": ["LUNG"]}]}})");
-  ASSERT_EQ(windows.windows.size(), 2u);
+          {"center": -600, "width": 1500, "explanation": ["LUNG"]},
+          {"center": 5, "width": 9, "function": "LINEAR_EXACT"}, {"center": 5, "width": 9, "function": "LOG"},
+          {"center": 5, "width": 9, "function": 3}]}})");
+  ASSERT_EQ(windows.windows.size(), 5u);
   EXPECT_EQ(windows.windows[0].center, 40);
   EXPECT_EQ(windows.windows[1].width, 1500);
   EXPECT_EQ(windows.windows[1].explanation, "");
+  // A function that is not a defined term (or not a string) reads as none.
+  EXPECT_EQ(windows.windows[2].function, "LINEAR_EXACT");
+  EXPECT_EQ(windows.windows[3].function, "");
+  EXPECT_EQ(windows.windows[4].function, "");
   EXPECT_TRUE(parseStoreSource(R"({"source": {"windows": {"center": 40, "width": 80}}})").windows.empty());
   const StoreSource ct = parseStoreSource(
       R"({"source": {"modality": "CT", "unit": "HU", "seriesUid": "1.2.3", "integerValues": true}})");

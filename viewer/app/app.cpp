@@ -249,6 +249,7 @@ void App::resetForDataset(const std::string& source) {
   session.measurements.clear();
   valueUnit_.clear();
   integerValues_ = true;
+  declaredVoi_.clear();
   sessionLoaded_ = false;  // loadSessionFrom sets it again after open()
   wlChosenForDataset_ = tfChosenForDataset_ = isoChosenForDataset_ = false;
   fileWlPresets_.clear();

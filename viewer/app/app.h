@@ -233,10 +233,12 @@ class App {
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
   // units); empty before the source's headers are read. Every value label follows it.
   const std::string& valueUnit() const { return valueUnit_; }
-  // How the MPR views map values to grey: DICOM's LINEAR for a volume whose values are
-  // integers, LINEAR_EXACT for one whose values are not (mpr.h); and the narrowest window a
-  // drag or the panel may set with it (1, or a millionth of the values' range).
-  VoiFunction voiFunction() const { return integerValues_ ? VoiFunction::Linear : VoiFunction::LinearExact; }
+  // How the MPR views map values to grey (mpr.h): the VOI LUT function the volume's file
+  // declares for its windows (DICOM's VOILUTFunction), applied to every window shown on it as
+  // DICOM viewers do; where it declares none, LINEAR for a volume whose values are integers and
+  // LINEAR_EXACT for one whose values are not. And the narrowest window a drag or the panel may
+  // set with it (1 for LINEAR, else a millionth of the values' range).
+  VoiFunction voiFunction() const;
   double minimumWindow() const;
   // Decimals of the value labels (window/level, the value under the cursor, ROI statistics,
   // the transfer function's points): none for integer values, else as many as their range needs.
@@ -354,6 +356,7 @@ class App {
   bool tfChosenForDataset_ = false;  // the reader picked a transfer function preset for it
   bool autoWlChosen_ = false;        // the reader chose "auto" (key 0, --wl auto)
   bool integerValues_ = true;  // every value of the volume is an integer (judged with the unit)
+  std::string declaredVoi_;    // the VOILUTFunction its file declares ("" where none): lookAtFileWindows
   bool isoChosenForDataset_ = false;  // the reader set the isovalue for this volume
   // The unit of the values the isovalue was set for ("HU": a CT's, kept for the next CT as a
   // table window is; "auto": transfer::automaticIsoValue of the volume open; "": chosen for a volume

@@ -67,7 +67,7 @@ nlohmann::json App::stateJson() {
                     {"progress", dataset_->progress()},
                     {"status", dataset_->status()},
                     {"unit", valueUnit_},
-                    {"voiFunction", voiFunction() == VoiFunction::Linear ? "LINEAR" : "LINEAR_EXACT"},
+                    {"voiFunction", voiFunctionName(voiFunction())},
                     {"previewFraction", previewFraction()}};
     nlohmann::json windows = nlohmann::json::array();
     for (const WindowLevelPreset& p : fileWlPresets_) {

@@ -147,6 +147,13 @@ void App::drawPanels() {
       session.wlPreset.clear();
       windowLevelChosen();
     }
+    // A VOI function other than LINEAR says so: the file's SIGMOID or LINEAR_EXACT (applied to
+    // every window on this volume), or LINEAR_EXACT for values that are not integers.
+    if (voiFunction() != VoiFunction::Linear) {
+      ImGui::TextDisabled("%s", fmt::format("grey: {}{}", voiFunctionName(voiFunction()),
+                                            declaredVoi_.empty() ? " (values not integers)" : " (the file's VOILUTFunction)")
+                                    .c_str());
+    }
     // The windows the volume's file names (its default first), above the table's CT presets.
     if (!fileWlPresets_.empty() &&
         ImGui::BeginTable("file-wl", 3, ImGuiTableFlags_BordersInnerH | ImGuiTableFlags_SizingStretchProp)) {

@@ -87,8 +87,16 @@ void App::judgeValueUnit(double minimum) {
   integerValues_ = info.integerValues;
 }
 
+VoiFunction App::voiFunction() const {
+  if (declaredVoi_ == "SIGMOID") return VoiFunction::Sigmoid;
+  if (declaredVoi_ == "LINEAR_EXACT") return VoiFunction::LinearExact;
+  if (declaredVoi_ == "LINEAR") return VoiFunction::Linear;
+  return integerValues_ ? VoiFunction::Linear : VoiFunction::LinearExact;
+}
+
 double App::minimumWindow() const {
-  return integerValues_ ? 1.0 : std::max(1e-6 * (histHi_ - histLo_), std::numeric_limits<double>::min());
+  return voiFunction() == VoiFunction::Linear ? 1.0
+                                              : std::max(1e-6 * (histHi_ - histLo_), std::numeric_limits<double>::min());
 }
 
 int App::labelDecimals() const { return integerValues_ ? 0 : valueDecimals(histHi_ - histLo_); }
@@ -185,7 +193,10 @@ void App::lookAtFileWindows() {
   // A store's windows are known at once; an import's once its headers are read, and final once
   // it is ready: a series arriving from a PACS shows its first file's until every file is in.
   fileWindowsFinal_ = dataset_->state() != Dataset::State::Importing;
-  std::vector<WindowLevelPreset> presets = fileWindowLevelPresets(dataset_->windows());
+  const std::vector<SourceWindow> windows = dataset_->windows();
+  // One VOILUTFunction per file (or per frame): its windows share it.
+  declaredVoi_ = windows.empty() ? std::string() : windows.front().function;
+  std::vector<WindowLevelPreset> presets = fileWindowLevelPresets(windows);
   const auto same = [](const WindowLevelPreset& a, const WindowLevelPreset& b) {
     return a.name == b.name && a.window == b.window && a.level == b.level && a.source == b.source;
   };

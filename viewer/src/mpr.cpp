@@ -141,8 +141,22 @@ std::string orientationLabel(Vec3 d) {
   return label;
 }
 
+const char* voiFunctionName(VoiFunction function) {
+  switch (function) {
+    case VoiFunction::Linear: return "LINEAR";
+    case VoiFunction::LinearExact: return "LINEAR_EXACT";
+    case VoiFunction::Sigmoid: return "SIGMOID";
+  }
+  return "LINEAR";
+}
+
 uint8_t windowGrey(double x, const WindowLevel& wl, VoiFunction function) {
   if (std::isnan(x)) return 0;
+  if (function == VoiFunction::Sigmoid) {
+    if (!(wl.window > 0)) return x > wl.level ? 255 : 0;
+    const double y = 255.0 / (1.0 + std::exp(-4.0 * (x - wl.level) / wl.window));
+    return static_cast<uint8_t>(std::clamp(std::lround(y), 0L, 255L));
+  }
   if (function == VoiFunction::LinearExact) {
     const double c = wl.level, w = wl.window;
     if (!(w > 0) || x <= c - w / 2) return x > c ? 255 : 0;

@@ -440,7 +440,9 @@ std::string provenance(const VolumeInfo& info, const BuildOptions& options) {
   if (!info.windows.empty()) {
     nlohmann::json windows = nlohmann::json::array();
     for (const SourceWindow& w : info.windows) {
-      windows.push_back({{"center", w.center}, {"width", w.width}, {"explanation", w.explanation}});
+      nlohmann::json window{{"center", w.center}, {"width", w.width}, {"explanation", w.explanation}};
+      if (!w.function.empty()) window["function"] = w.function;
+      windows.push_back(std::move(window));
     }
     j["source"]["windows"] = windows;
   }

@@ -126,13 +126,19 @@ StoreSource parseStoreSource(const std::string& provenanceJson) {
   if (windows != source.end() && windows->is_array()) {
     for (const nlohmann::json& w : *windows) {
       if (!w.is_object()) continue;
-      const auto center = w.find("center"), width = w.find("width"), explanation = w.find("explanation");
+      const auto center = w.find("center"), width = w.find("width"), explanation = w.find("explanation"),
+                 function = w.find("function");
       if (center == w.end() || width == w.end() || !center->is_number() || !width->is_number()) continue;
       SourceWindow window;
       window.center = center->get<double>();
       window.width = width->get<double>();
       if (!std::isfinite(window.center) || !std::isfinite(window.width) || !(window.width > 0)) continue;
       if (explanation != w.end() && explanation->is_string()) window.explanation = explanation->get<std::string>();
+      // The defined terms only (dicom_series.cpp took any other as none).
+      if (function != w.end() && function->is_string()) {
+        const std::string f = function->get<std::string>();
+        if (f == "LINEAR" || f == "LINEAR_EXACT" || f == "SIGMOID") window.function = f;
+      }
       s.windows.push_back(std::move(window));
     }
   }

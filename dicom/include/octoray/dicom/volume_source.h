@@ -22,6 +22,9 @@ struct SourceWindow {
   double center = 0;
   double width = 1;          // > 0
   std::string explanation;  // WindowCenterWidthExplanation ("BRAIN", "LUNG", ...) or ""
+  // The VOI LUT function the file declares for it (VOILUTFunction, PS3.3 C.11.2.1.3): "LINEAR",
+  // "LINEAR_EXACT" or "SIGMOID"; "" where it declares none (LINEAR is then implied).
+  std::string function;
 };
 
 struct VolumeInfo {

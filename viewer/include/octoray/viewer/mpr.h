@@ -163,12 +163,16 @@ class StoreSlicer {
 // values and a window of at least 1 (its -0.5 and window - 1 place integers on the grey
 // ramp): what CT and MR viewers show. LINEAR_EXACT maps level +- window/2 linearly, for any
 // window above 0: for a volume whose values are not integers (a float NIfTI or MHD, values in
-// [0, 1]), where LINEAR would show a window narrower than 1 as a step.
-enum class VoiFunction { Linear, LinearExact };
+// [0, 1]), where LINEAR would show a window narrower than 1 as a step. SIGMOID maps
+// 1 / (1 + exp(-4 (value - level) / window)): level mid-grey, a soft roll-off instead of clipping
+// (C.11.2.1.3.1), as some modalities' files ask with VOILUTFunction.
+enum class VoiFunction { Linear, LinearExact, Sigmoid };
+// DICOM's defined term: "LINEAR", "LINEAR_EXACT", "SIGMOID".
+const char* voiFunctionName(VoiFunction function);
 
-// Maps physical values to grey levels with a window/level: values at level - window/2 and
-// below black, level + window/2 and above white. LINEAR takes a window below 1 as 1. NaN
-// (outside the volume) maps to black.
+// Maps physical values to grey levels with a window/level: for the linear functions values at
+// level - window/2 and below black, level + window/2 and above white. LINEAR takes a window
+// below 1 as 1. NaN (outside the volume) maps to black.
 uint8_t windowGrey(double value, const WindowLevel& wl, VoiFunction function = VoiFunction::Linear);
 
 }  // namespace octoray::viewer
