@@ -131,7 +131,7 @@ void checkRescale(const std::string& path, double slope, double intercept, int f
 }
 
 // The display windows `ds` names, in order (PS3.3 C.11.2.1.2), each with the VOI LUT function
-// `ds` declares (VOILUTFunction, C.11.2.1.3), which the viewer follows. A pair that is not two
+// `ds` declares (VOILUTFunction, C.11.2.1.3; sourceVoiFunction), which the viewer follows. A pair that is not two
 // finite numbers is left out, and so is a width below 1 where the function is LINEAR (the
 // default, which allows none, C.11.2.1.2.1) or a width not above 0 where it is LINEAR_EXACT or
 // SIGMOID (which allow any above 0, C.11.2.1.3). A function that is not one of those three
@@ -143,13 +143,14 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
   const auto say = [&](std::string text) {
     if (problem.empty()) problem = std::move(text);
   };
-  std::string function = stringValue(ds, kVoiLutFunction);
-  if (!function.empty() && function != "LINEAR" && function != "LINEAR_EXACT" && function != "SIGMOID") {
+  const std::string declared = stringValue(ds, kVoiLutFunction);
+  const std::optional<std::string> known = sourceVoiFunction(declared);
+  if (!known) {
     say(fmt::format("VOILUTFunction '{}' is not LINEAR, LINEAR_EXACT or SIGMOID: its windows are "
                     "taken as LINEAR",
-                    function));
-    function.clear();
+                    declared));
   }
+  const std::string function = known.value_or("");
   const auto centers = numberValues(ds, kWindowCenter);
   const auto widths = numberValues(ds, kWindowWidth);
   if (!centers || !widths) {
@@ -165,7 +166,7 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
   const std::vector<std::string> explanations = stringValues(ds, kWindowExplanation);
   std::vector<SourceWindow> windows;
   for (std::size_t i = 0; i < std::min(centers->size(), widths->size()); ++i) {
-    const bool linear = function.empty() || function == "LINEAR";
+    const bool linear = function.empty();
     if (linear && (*widths)[i] < 1) {
       say(fmt::format("WindowWidth {} is below 1, the least the LINEAR VOI function allows: that window "
                       "is left out",
@@ -183,7 +184,7 @@ std::vector<SourceWindow> readWindows(const gdcm::DataSet& ds, std::string& prob
     w.function = function;
     // Philips writes its one window twice ("40\\40", "80\\80"): a repeat is one window.
     const bool repeat = std::any_of(windows.begin(), windows.end(), [&](const SourceWindow& o) {
-      return o.center == w.center && o.width == w.width && o.explanation == w.explanation && o.function == w.function;
+      return o.center == w.center && o.width == w.width && o.explanation == w.explanation;
     });
     if (!repeat) windows.push_back(std::move(w));
   }

@@ -36,6 +36,12 @@ XXH128_hash_t hashFile(const std::string& path) {
 
 }  // namespace
 
+std::optional<std::string> sourceVoiFunction(std::string_view declared) {
+  if (declared.empty() || declared == "LINEAR") return std::string();
+  if (declared == "LINEAR_EXACT" || declared == "SIGMOID") return std::string(declared);
+  return std::nullopt;
+}
+
 bool holdsHounsfieldUnits(const std::string& unit, const std::string& modality, bool integerValues,
                           double minimum, bool* guessed) {
   if (guessed) *guessed = false;

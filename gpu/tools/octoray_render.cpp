@@ -4,7 +4,7 @@
 // reference renderer (the double-precision oracle). Inputs that are not stores are built into
 // a temporary store first for the GPU path (border 2, removed afterwards).
 //   octoray-render PATH -o OUT.png [--exr OUT.exr] --mode dvr|iso|mip
-//     [--preset NAME | --tf FILE [--tf-name NAME]]  [--iso HU]  --size WxH
+//     [--preset NAME | --tf FILE [--tf-name NAME]]  [--iso VALUE]  --size WxH
 //     (without --preset/--tf: transfer/defaults.h's default for the mode; without --iso:
 //     300 HU for CT, Otsu's threshold of the values otherwise)
 //     --azimuth DEG --elevation DEG --zoom F | --camera FILE   [--json]
@@ -156,6 +156,9 @@ void resolveDefaults(Arguments& a) {
     a.iso = transfer::kDefaultCtIsoValueHu;
     fmt::print(stderr, "octoray-render: no --iso: using {:g} HU (bone)\n", *a.iso);
   } else if (needIso) {
+    if (!(std::isfinite(kind.lo) && std::isfinite(kind.hi))) {
+      throw Error(a.path, "--mode iso: the volume has no finite values to choose an isovalue from: give --iso");
+    }
     a.iso = otsuIsoValue(a.path, kind);
     fmt::print(stderr, "octoray-render: no --iso: using {:.9g}, Otsu's threshold of the values {:g}..{:g} "
                "(not CT)\n", *a.iso, kind.lo, kind.hi);
@@ -189,7 +192,7 @@ RenderOptions renderOptions(const Arguments& a) {
   RenderOptions o;
   o.mode = a.mode == "iso" ? RenderMode::Iso : a.mode == "mip" ? RenderMode::Mip : RenderMode::Dvr;
   if (o.mode == RenderMode::Iso) {
-    if (!a.iso) throw Error("", "--mode iso needs --iso HU");
+    if (!a.iso) throw Error("", "--mode iso needs --iso VALUE");
     o.isoValue = *a.iso;
   }
   o.stepMm = a.stepMm;

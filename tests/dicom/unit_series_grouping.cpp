@@ -183,12 +183,12 @@ TEST(SeriesWindows, UnusableWindowsAreLeftOutWithAWarningNamingTheFile) {
 }
 
 // Each window carries the VOI LUT function its file declares (VOILUTFunction), for the viewer
-// to show it with: the defined term as written, "" where the file declares none; an undefined
-// term is taken as none.
+// to show it with: LINEAR_EXACT and SIGMOID as written, "" where the file declares none or
+// LINEAR (the default); an undefined term is taken as none.
 TEST(SeriesWindows, EachWindowCarriesTheFunctionItsFileDeclares) {
   for (const auto& [declared, kept] : {std::pair<std::string, std::string>{"SIGMOID", "SIGMOID"},
                                        {"LINEAR_EXACT", "LINEAR_EXACT"},
-                                       {"LINEAR", "LINEAR"},
+                                       {"LINEAR", ""},
                                        {"", ""},
                                        {"LOG", ""}}) {
     SCOPED_TRACE(declared);
@@ -201,6 +201,20 @@ TEST(SeriesWindows, EachWindowCarriesTheFunctionItsFileDeclares) {
     EXPECT_EQ(w.info.windows[1].function, kept);
     EXPECT_EQ(w.info.windows[1].width, 1500);
   }
+}
+
+// Files that declare LINEAR and files that declare nothing name the same windows: one choice,
+// not two, when the series' slices vote.
+TEST(SeriesWindows, DeclaredLinearAndNoneAreOneChoice) {
+  const std::vector<std::pair<DicomTag, std::string>> none = {{kCenter, "40"}, {kWidth, "400"}};
+  std::vector<std::pair<DicomTag, std::string>> linear = none;
+  linear.push_back({kFunction, "LINEAR"});
+  const std::vector<std::pair<DicomTag, std::string>> other = {{kCenter, "50"}, {kWidth, "350"}};
+  // Two say nothing and two LINEAR (four for 40 / 400), three name another window.
+  const WindowedSeries w = writeWithWindows("windows-linear-none", {none, other, linear, other, none, other, linear});
+  ASSERT_EQ(w.info.windows.size(), 1u);
+  EXPECT_EQ(w.info.windows[0].center, 40);
+  EXPECT_EQ(w.info.windows[0].function, "");
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/image_io.h"
@@ -241,6 +242,18 @@ TEST_F(RenderTools, DefaultsWithoutPresetOrTransferFunction) {
     EXPECT_NE(otsu.err.find("no --iso: using 100, Otsu's threshold of the values 20..180"), std::string::npos) << otsu.err;
     EXPECT_EQ(image("o.exr"), ball);
   }
+  // No finite value to split: refused by name, not an isosurface at an infinite value.
+  {
+    std::ofstream raw(dir / "nan.raw", std::ios::binary);
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    for (int i = 0; i < 8 * 8 * 8; ++i) raw.write(reinterpret_cast<const char*>(&nan), sizeof nan);
+  }
+  std::ofstream(dir / "nan.nhdr") << "NRRD0004\ntype: float\ndimension: 3\nsizes: 8 8 8\n"
+                                     "spacings: 1 1 1\nendian: little\nencoding: raw\ndata file: nan.raw\n";
+  const ProcessResult nanIso = run({(dir / "nan.nhdr").string(), "--mode", "iso", "-o", (dir / "n.png").string()});
+  EXPECT_EQ(nanIso.exitCode, 1) << nanIso.err;
+  EXPECT_NE(nanIso.err.find("no finite values to choose an isovalue from"), std::string::npos) << nanIso.err;
+  EXPECT_NE(nanIso.err.find("nan.nhdr"), std::string::npos) << nanIso.err;
 }
 
 }  // namespace

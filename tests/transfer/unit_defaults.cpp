@@ -18,7 +18,7 @@ namespace {
 // OpenCV's THRESH_OTSU on an 8-bit image whose pixels are the samples' bin numbers: its
 // threshold t puts bins 0..t below, so the isovalue splits the samples into the same two
 // classes, at the upper edge of bin t or, where empty bins follow it, in the middle of them.
-TEST(ViewerPresets, AutomaticIsoValueIsOtsusThresholdOfTheValues) {
+TEST(TransferDefaults, AutomaticIsoValueIsOtsusThresholdOfTheValues) {
   const double lo = -12.5, hi = 3827.5;  // an MR's range; 256 bins of 15 units
   std::mt19937 rng(2026);
   struct Mix {

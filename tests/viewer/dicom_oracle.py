@@ -94,11 +94,22 @@ def window_grey_exact(values, window, level):
 
 
 def window_grey_sigmoid(values, window, level):
-    """DICOM PS3.3 C.11.2.1.3.1 SIGMOID VOI LUT to 0..255: 255 / (1 + exp(-4 (x - c) / w)),
-    rounded half up; NaN to 0."""
-    c, w = float(level), float(window)
+    """DICOM PS3.3 C.11.2.1.3.1 SIGMOID VOI LUT to 0..255, by pydicom's own implementation
+    (apply_windowing on an unsigned 16-bit MONOCHROME2 dataset: output 0..65535), scaled to
+    0..255 and rounded half up; NaN to 0."""
+    from pydicom.dataset import Dataset
+    from pydicom.pixel_data_handlers.util import apply_windowing
+    ds = Dataset()
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsStored = 16
+    ds.PixelRepresentation = 0
+    ds.WindowCenter = float(level)
+    ds.WindowWidth = float(window)
+    ds.VOILUTFunction = "SIGMOID"
+    finite = np.where(np.isnan(values), 0.0, values)
     with np.errstate(over="ignore"):
-        g = np.floor(255.0 / (1.0 + np.exp(-4.0 * (values - c) / w)) + 0.5)
+        y = apply_windowing(finite.astype(np.float64), ds)
+    g = np.floor(y / 65535.0 * 255.0 + 0.5)
     g = np.where(np.isnan(values), 0, g)
     return np.clip(g, 0, 255).astype(np.uint8)
 

@@ -160,6 +160,12 @@ TEST(ViewerMpr, WindowGreySigmoidRollsOffInsteadOfClipping) {
   EXPECT_EQ(windowGrey(100.0, wl), 255);
   EXPECT_LT(windowGrey(80.0, wl, sigmoid), windowGrey(100.0, wl, sigmoid));
   EXPECT_STREQ(voiFunctionName(sigmoid), "SIGMOID");
+  // The volume's function: the one its file declares, else by its values.
+  EXPECT_EQ(voiFunction("SIGMOID", true), VoiFunction::Sigmoid);
+  EXPECT_EQ(voiFunction("SIGMOID", false), VoiFunction::Sigmoid);
+  EXPECT_EQ(voiFunction("LINEAR_EXACT", true), VoiFunction::LinearExact);
+  EXPECT_EQ(voiFunction("", true), VoiFunction::Linear);
+  EXPECT_EQ(voiFunction("", false), VoiFunction::LinearExact);
   EXPECT_STREQ(voiFunctionName(VoiFunction::LinearExact), "LINEAR_EXACT");
   EXPECT_STREQ(voiFunctionName(VoiFunction::Linear), "LINEAR");
 }

@@ -534,6 +534,15 @@ class ViewerGui(unittest.TestCase):
                     # MetaIO writes the direction matrix row by row.
                     f"TransformMatrix = {' '.join(repr(v) for v in direction.ravel())}\n"
                     "ElementType = MET_FLOAT\nElementDataFile = head.raw\n")
+        # The same head at 0.9 of those values, four times over along z (112 slices, 117 MB):
+        # other content, so imported afresh (not the cache's store), and long enough to import
+        # (28 slices took about 0.2 s) that choices made in the frames after opening it come
+        # before its store is ready.
+        np.tile(values * np.float32(0.9), (4, 1, 1)).tofile(vw.path("head-09.raw"))
+        mhd09 = vw.path("head-09.mhd")
+        with open(mhd) as f, open(mhd09, "w") as g:
+            g.write(f.read().replace("head.raw", "head-09.raw").replace(f"DimSize = {values.shape[2]} {values.shape[1]} {values.shape[0]}",
+                                                                          f"DimSize = {values.shape[2]} {values.shape[1]} {4 * values.shape[0]}"))
         vw.run(mhd, [
             {"type": "action", "name": "overlays", "value": False},
             {"type": "wait-converged"},
@@ -546,6 +555,23 @@ class ViewerGui(unittest.TestCase):
             *open_then(self.tilted_store, {"type": "dump-state", "path": vw.path("ct-after-chosen.json")}),
             *open_then(mhd, {"type": "dump-state", "path": vw.path("mhd-again.json")}),
             *open_then(self.head_store, {"type": "dump-state", "path": vw.path("ct-after-mhd.json")}),
+            # Chosen before its store is ready: neither Otsu nor the auto window replaces them.
+            {"type": "action", "name": "open", "value": mhd09},
+            {"type": "action", "name": "iso", "value": 0.2},
+            {"type": "action", "name": "window-level", "value": [0.3, 0.25]},
+            {"type": "dump-state", "path": vw.path("chosen-importing.json")},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("chosen-ready.json")},
+            # A session of it, loaded with a CT open (the volume reopened) and with it open.
+            {"type": "save-session", "path": vw.path("mhd09-session.json")},
+            *open_then(self.head_store, {"type": "load-session", "path": vw.path("mhd09-session.json")}),
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("session-reopened.json")},
+            {"type": "action", "name": "iso", "value": 0.25},
+            {"type": "action", "name": "window-level", "value": [0.5, 0.5]},
+            {"type": "load-session", "path": vw.path("mhd09-session.json")},
+            {"type": "wait-converged"},
+            {"type": "dump-state", "path": vw.path("session-open.json")},
         ])
         # Its slices show in its auto window, narrower than 1, with LINEAR_EXACT: DICOM's LINEAR
         # would take the window as 1 wide and show the head white.
@@ -602,6 +628,16 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(load_json(vw.path("ct-after-chosen.json"))["session"]["isoValue"], 500)
         self.assertEqual(load_json(vw.path("mhd-again.json"))["session"]["isoValue"], iso)
         self.assertEqual(load_json(vw.path("ct-after-mhd.json"))["session"]["isoValue"], 300)
+        importing = load_json(vw.path("chosen-importing.json"))
+        self.assertEqual(importing["dataset"]["state"], "importing")
+        self.assertFalse(importing["dataset"]["reusedCache"])
+        for name in ("chosen-ready", "session-reopened", "session-open"):
+            state = load_json(vw.path(name + ".json"))
+            self.assertEqual(state["dataset"]["state"], "ready", name)
+            self.assertEqual(state["dataset"]["path"], mhd09, name)
+            self.assertEqual(state["session"]["isoValue"], 0.2, name)
+            self.assertEqual(state["session"]["windowLevel"], {"window": 0.3, "level": 0.25, "preset": ""}, name)
+        self.assertTrue(load_json(vw.path("session-reopened.json"))["dataset"]["reusedCache"])
 
     # A series whose files name a window opens with it, as Horos, Weasis, OHIF and Slicer open
     # one: pydicom's MR slice (WindowCenter 600, WindowWidth 1600) and the 1 mm Philips head
@@ -650,6 +686,7 @@ class ViewerGui(unittest.TestCase):
             *open_then(self.head_store, {"type": "screenshot", "path": vw.path("head-own.png")}),
             *open_then(nifti, {"type": "dump-state", "path": vw.path("nifti.json")}),
             *open_then(sigmoid, {"type": "screenshot", "path": vw.path("mr-sigmoid.png")}),
+            *open_then(folder, {"type": "dump-state", "path": vw.path("mr-after-sigmoid.json")}),
         ])
         state = load_json(vw.path("mr.png.json"))
         self.assertEqual(state["dataset"]["unit"], "")
@@ -702,10 +739,16 @@ class ViewerGui(unittest.TestCase):
         axial = state["views"]["axial"]["rect"]
         self.assertGreater(int(np.count_nonzero(crop(sigmoid_shot, axial) != crop(linear_shot, axial))), 500,
                            "the SIGMOID picture is the LINEAR one")
+        # The plain MR opened after it is LINEAR again.
+        self.assertEqual(load_json(vw.path("mr-after-sigmoid.json"))["dataset"]["voiFunction"], "LINEAR")
         # Named before they are known: --wl "file 2" on a store of that series, and a script's
         # wl-preset "file 2" right after opening the folder, which is still being imported.
         two_store = vw.path("two.octoray")
         p = run([os.path.join(BIN, "octoray-import"), two, "-o", two_store])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        # The SIGMOID MR as a store: the function travels in its provenance.
+        sigmoid_store = vw.path("mr-sigmoid.octoray")
+        p = run([os.path.join(BIN, "octoray-import"), sigmoid, "-o", sigmoid_store])
         self.assertEqual(p.returncode, 0, p.stderr)
         vw.run(two_store, [
             {"type": "dump-state", "path": vw.path("wl-file-2.json")},
@@ -727,6 +770,7 @@ class ViewerGui(unittest.TestCase):
             {"type": "dump-state", "path": vw.path("pending-unnamed-importing.json")},
             {"type": "wait-converged"},
             {"type": "dump-state", "path": vw.path("pending-unnamed.json")},
+            *open_then(sigmoid_store, {"type": "dump-state", "path": vw.path("sigmoid-store.json")}),
         ], extra=["--wl", "file 2"], cache="cache-pending")
         self.assertEqual(load_json(vw.path("wl-file-2.json"))["session"]["windowLevel"],
                          {"window": 1500, "level": -600, "preset": "file 2"})
@@ -741,6 +785,9 @@ class ViewerGui(unittest.TestCase):
                          {"window": float(head_named.WindowWidth[0]), "level": float(head_named.WindowCenter[0]),
                           "preset": "file"})
         self.assertTrue(any('"file 2": its file names 1 window' in m for m in state["messages"]), state["messages"])
+        state = load_json(vw.path("sigmoid-store.json"))
+        self.assertEqual(state["dataset"]["voiFunction"], "SIGMOID")
+        self.assertEqual(state["session"]["windowLevel"]["preset"], "file")
 
     # The same while a series without HU arrives from a PACS (octoray's synthetic series
     # relabelled MR): the slices in so far show with the auto window/level of those slices,

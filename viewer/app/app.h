@@ -233,11 +233,9 @@ class App {
   // The unit of the volume's values: "HU" for CT, "" where they have none (MR, files without
   // units); empty before the source's headers are read. Every value label follows it.
   const std::string& valueUnit() const { return valueUnit_; }
-  // How the MPR views map values to grey (mpr.h): the VOI LUT function the volume's file
-  // declares for its windows (DICOM's VOILUTFunction), applied to every window shown on it as
-  // DICOM viewers do; where it declares none, LINEAR for a volume whose values are integers and
-  // LINEAR_EXACT for one whose values are not. And the narrowest window a drag or the panel may
-  // set with it (1 for LINEAR, else a millionth of the values' range).
+  // How the MPR views map values to grey (viewer::voiFunction of mpr.h: the VOI LUT function
+  // the volume's file declares, else by whether its values are integers). And the narrowest
+  // window a drag or the panel may set (1 for integer values, else a millionth of their range).
   VoiFunction voiFunction() const;
   double minimumWindow() const;
   // Decimals of the value labels (window/level, the value under the cursor, ROI statistics,

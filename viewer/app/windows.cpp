@@ -87,16 +87,12 @@ void App::judgeValueUnit(double minimum) {
   integerValues_ = info.integerValues;
 }
 
-VoiFunction App::voiFunction() const {
-  if (declaredVoi_ == "SIGMOID") return VoiFunction::Sigmoid;
-  if (declaredVoi_ == "LINEAR_EXACT") return VoiFunction::LinearExact;
-  if (declaredVoi_ == "LINEAR") return VoiFunction::Linear;
-  return integerValues_ ? VoiFunction::Linear : VoiFunction::LinearExact;
-}
+VoiFunction App::voiFunction() const { return viewer::voiFunction(declaredVoi_, integerValues_); }
 
 double App::minimumWindow() const {
-  return voiFunction() == VoiFunction::Linear ? 1.0
-                                              : std::max(1e-6 * (histHi_ - histLo_), std::numeric_limits<double>::min());
+  // 1 on integer values whatever the function (a narrower window is a threshold there, and the
+  // labels carry no decimals to show it).
+  return integerValues_ ? 1.0 : std::max(1e-6 * (histHi_ - histLo_), std::numeric_limits<double>::min());
 }
 
 int App::labelDecimals() const { return integerValues_ ? 0 : valueDecimals(histHi_ - histLo_); }

@@ -150,6 +150,12 @@ const char* voiFunctionName(VoiFunction function) {
   return "LINEAR";
 }
 
+VoiFunction voiFunction(const std::string& declared, bool integerValues) {
+  if (declared == "SIGMOID") return VoiFunction::Sigmoid;
+  if (declared == "LINEAR_EXACT") return VoiFunction::LinearExact;
+  return integerValues ? VoiFunction::Linear : VoiFunction::LinearExact;
+}
+
 uint8_t windowGrey(double x, const WindowLevel& wl, VoiFunction function) {
   if (std::isnan(x)) return 0;
   if (function == VoiFunction::Sigmoid) {

@@ -134,10 +134,9 @@ StoreSource parseStoreSource(const std::string& provenanceJson) {
       window.width = width->get<double>();
       if (!std::isfinite(window.center) || !std::isfinite(window.width) || !(window.width > 0)) continue;
       if (explanation != w.end() && explanation->is_string()) window.explanation = explanation->get<std::string>();
-      // The defined terms only (dicom_series.cpp took any other as none).
+      // The defined terms only, as the DICOM reader takes them.
       if (function != w.end() && function->is_string()) {
-        const std::string f = function->get<std::string>();
-        if (f == "LINEAR" || f == "LINEAR_EXACT" || f == "SIGMOID") window.function = f;
+        window.function = sourceVoiFunction(function->get<std::string>()).value_or("");
       }
       s.windows.push_back(std::move(window));
     }

@@ -275,7 +275,7 @@ json inspectJson(const Arguments& a) {
   j["windows"] = json::array();
   for (const SourceWindow& w : info.windows) {
     j["windows"].push_back({{"center", w.center}, {"width", w.width}, {"explanation", w.explanation},
-                            {"function", w.function.empty() ? "LINEAR" : w.function}});
+                            {"function", w.function}});
   }
   j["valueRange"] = std::isfinite(lo) ? json{{"min", lo}, {"max", hi}} : json(nullptr);
   j["nonFiniteSamples"] = nonFinite;
@@ -319,7 +319,7 @@ void printInspect(const json& j) {
   for (const auto& w : j["windows"]) {
     fmt::print("window       W {} / L {}{}{}\n", w["width"].get<double>(), w["center"].get<double>(),
                w["explanation"].get<std::string>().empty() ? "" : " (" + w["explanation"].get<std::string>() + ")",
-               w["function"].get<std::string>() == "LINEAR" ? "" : ", " + w["function"].get<std::string>());
+               w["function"].get<std::string>().empty() ? "" : ", " + w["function"].get<std::string>());
   }
   for (const auto& w : j["warnings"]) fmt::print("warning: {}\n", w.get<std::string>());
   for (const auto& s : j["skipped"]) {

@@ -8,7 +8,9 @@
 #include <limits>
 #include <memory>
 #include <span>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "octoray/core/geometry.h"
@@ -22,10 +24,15 @@ struct SourceWindow {
   double center = 0;
   double width = 1;          // > 0
   std::string explanation;  // WindowCenterWidthExplanation ("BRAIN", "LUNG", ...) or ""
-  // The VOI LUT function the file declares for it (VOILUTFunction, PS3.3 C.11.2.1.3): "LINEAR",
-  // "LINEAR_EXACT" or "SIGMOID"; "" where it declares none (LINEAR is then implied).
+  // The VOI LUT function the file declares for it (VOILUTFunction, PS3.3 C.11.2.1.3):
+  // "LINEAR_EXACT" or "SIGMOID"; "" where it declares none or LINEAR, the default (a viewer then
+  // maps integer values with LINEAR and others with LINEAR_EXACT: sourceVoiFunction).
   std::string function;
 };
+
+// SourceWindow::function for a declared VOILUTFunction: "" for none or "LINEAR", the term
+// itself for "LINEAR_EXACT" and "SIGMOID", nothing for any other text (not a defined term).
+std::optional<std::string> sourceVoiFunction(std::string_view declared);
 
 struct VolumeInfo {
   std::array<int64_t, 3> dims{0, 0, 0};  // samples along i (columns), j (rows), k (slices)

@@ -169,6 +169,11 @@ class StoreSlicer {
 enum class VoiFunction { Linear, LinearExact, Sigmoid };
 // DICOM's defined term: "LINEAR", "LINEAR_EXACT", "SIGMOID".
 const char* voiFunctionName(VoiFunction function);
+// The function a volume's slices are shown with: the one its file declares for its windows
+// (SourceWindow::function: "LINEAR_EXACT" or "SIGMOID"), applied to every window on it as
+// DICOM viewers do; where it declares none or LINEAR, LINEAR for integer values and
+// LINEAR_EXACT for others (LINEAR would show their narrow windows as a step).
+VoiFunction voiFunction(const std::string& declared, bool integerValues);
 
 // Maps physical values to grey levels with a window/level: for the linear functions values at
 // level - window/2 and below black, level + window/2 and above white. LINEAR takes a window

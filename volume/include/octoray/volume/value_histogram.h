@@ -23,7 +23,7 @@ int histogramBin(double value, double lo, double hi, int bins);
 inline constexpr int64_t kHistogramSamples = int64_t{1} << 22;
 
 struct ValueHistogram {
-  std::vector<int> counts;  // empty where no brick could be read
+  std::vector<int> counts;  // `bins` counts (all 0 where the first brick could not be read)
   double lo = 0, hi = 1;    // the bins span [lo, hi]
   int level = 0;            // the octree level counted
   // Where a brick could not be read: the store's message; `counts` holds the bricks before it.
