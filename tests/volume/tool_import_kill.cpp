@@ -12,11 +12,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <random>
 #include <string>
 #include <thread>
@@ -154,9 +156,15 @@ TEST(ToolImportKill, SigkillAtAnyMomentLeavesNoFileOrAWholeOne) {
   const fs::path out = dir / "out.octoray";
   const fs::path log = dir / "import.log";
 
-  const double seconds = importSeconds(raw, out, log);
-  expectWholeStore(out);
-  fs::remove(out);
+  // The fastest of three imports: one measured while other tests load the machine (ctest -j)
+  // would place the kills late, after imports that then run faster (a run on 2026-12-06 killed
+  // only 5 of 12 midway).
+  double seconds = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 3; ++i) {
+    seconds = std::min(seconds, importSeconds(raw, out, log));
+    expectWholeStore(out);
+    fs::remove(out);
+  }
 
   // One kill in each twelfth of 1.15x the measured duration, so some land after completion.
   std::mt19937 random(20240611);
