@@ -90,23 +90,6 @@ struct ValueKind {
   double lo = std::numeric_limits<double>::quiet_NaN(), hi = lo;
 };
 
-// Visits the finite values of a volume that is not a store, 64 MiB of slices at a time.
-template <typename Visit>
-void forEachValue(const std::string& path, Visit visit) {
-  const auto source = openVolume(path);
-  const VolumeInfo& info = source->info();
-  const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
-  std::vector<float> buffer;
-  for (int64_t k = 0; k < info.dims[2]; k += slab) {
-    const int64_t n = std::min(slab, info.dims[2] - k);
-    buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
-    source->readSlab(k, n, buffer);
-    for (const float v : buffer) {
-      if (std::isfinite(v)) visit(static_cast<double>(v));
-    }
-  }
-}
-
 ValueKind valueKind(const std::string& path) {
   ValueKind kind;
   if (volume::isStoreFile(path)) {
@@ -116,38 +99,67 @@ ValueKind valueKind(const std::string& path) {
     kind.hi = store.node(0).maxValue;
     return kind;
   }
-  const VolumeInfo info = openVolume(path)->info();
+  const auto source = openVolume(path);
+  const VolumeInfo& info = source->info();
   kind.lo = std::numeric_limits<double>::infinity();
   kind.hi = -kind.lo;
-  forEachValue(path, [&](double v) {
-    kind.lo = std::min(kind.lo, v);
-    kind.hi = std::max(kind.hi, v);
-  });
+  const int64_t slab = std::max<int64_t>(1, (int64_t{64} << 20) / 4 / std::max<int64_t>(1, info.sliceSamples()));
+  std::vector<float> buffer;
+  for (int64_t k = 0; k < info.dims[2]; k += slab) {
+    const int64_t n = std::min(slab, info.dims[2] - k);
+    buffer.resize(static_cast<std::size_t>(n * info.sliceSamples()));
+    source->readSlab(k, n, buffer);
+    for (const float v : buffer) {
+      if (!std::isfinite(v)) continue;
+      kind.lo = std::min(kind.lo, static_cast<double>(v));
+      kind.hi = std::max(kind.hi, static_cast<double>(v));
+    }
+  }
   kind.hounsfield = holdsHounsfieldUnits(info.unit, info.modality, info.integerValues, kind.lo, &kind.guessed);
   return kind;
 }
 
-// The isovalue the viewer opens a volume without HU at: Otsu's threshold
-// (transfer::automaticIsoValue) of a 256-bin histogram of its values. A store's is
-// volume::storeHistogram, the viewer's own; another input's counts every value, the same
-// where the volume has at most 4 Mi samples and 256 bricks of 32^3 (above that the viewer
-// counts a coarser level's means, so the two may differ by a bin or so).
-double otsuIsoValue(const std::string& path, const ValueKind& kind) {
-  if (volume::isStoreFile(path)) {
-    const volume::ValueHistogram h = volume::storeHistogram(volume::StoreReader(path), 256);
-    if (!h.problem.empty()) throw Error(path, h.problem);
-    return transfer::automaticIsoValue(h.counts, h.lo, h.hi);
+// A store built from a non-store input, for the GPU path and for the histogram of an automatic
+// isovalue (otsuIsoValue); removed when done.
+class TemporaryStore {
+ public:
+  explicit TemporaryStore(const std::string& input) {
+    std::random_device random;
+    path_ = std::filesystem::temp_directory_path() /
+            fmt::format("octoray-render-{:08x}.octoray", random());
+    auto source = openVolume(input);
+    volume::BuildOptions options;
+    options.border = 2;  // central differences of +-1 voxel for shading
+    volume::buildStore(*source, path_.string(), options);
   }
-  const double top = volume::histogramTop(kind.lo, kind.hi);
-  std::vector<int> counts(256, 0);
-  forEachValue(path, [&](double v) { ++counts[static_cast<std::size_t>(volume::histogramBin(v, kind.lo, top, 256))]; });
-  return transfer::automaticIsoValue(counts, kind.lo, top);
+  ~TemporaryStore() {
+    std::error_code ignored;
+    std::filesystem::remove(path_, ignored);
+  }
+  TemporaryStore(const TemporaryStore&) = delete;
+  TemporaryStore& operator=(const TemporaryStore&) = delete;
+  std::string path() const { return path_.string(); }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// The isovalue the viewer opens a volume without HU at: Otsu's threshold
+// (transfer::automaticIsoValue) of the histogram the viewer reads, volume::storeHistogram of
+// its store. An input that is not a store is built into `temporary` first (the store the GPU
+// path then renders), so the value is the viewer's here too.
+double otsuIsoValue(const std::string& path, std::optional<TemporaryStore>& temporary) {
+  if (!volume::isStoreFile(path) && !temporary) temporary.emplace(path);
+  const std::string store = temporary ? temporary->path() : path;
+  const volume::ValueHistogram h = volume::storeHistogram(volume::StoreReader(store), 256);
+  if (!h.problem.empty()) throw Error(path, h.problem);
+  return transfer::automaticIsoValue(h.counts, h.lo, h.hi);
 }
 
 // Without --preset and --tf: the default of transfer/defaults.h for the mode and the volume.
 // For an isosurface without --iso: 300 HU for CT, Otsu's threshold of the values otherwise, as
 // the viewer opens it. Says on stderr what it chose.
-void resolveDefaults(Arguments& a) {
+void resolveDefaults(Arguments& a, std::optional<TemporaryStore>& temporary) {
   const bool needTf = a.preset.empty() && a.tfPath.empty();
   const bool needIso = a.mode == "iso" && !a.iso;
   if (!needTf && !needIso) return;
@@ -159,7 +171,7 @@ void resolveDefaults(Arguments& a) {
     if (!(std::isfinite(kind.lo) && std::isfinite(kind.hi))) {
       throw Error(a.path, "--mode iso: the volume has no finite values to choose an isovalue from: give --iso");
     }
-    a.iso = otsuIsoValue(a.path, kind);
+    a.iso = otsuIsoValue(a.path, temporary);
     fmt::print(stderr, "octoray-render: no --iso: using {:.9g}, Otsu's threshold of the values {:g}..{:g} "
                "(not CT)\n", *a.iso, kind.lo, kind.hi);
   }
@@ -269,30 +281,6 @@ gpu::Enhancement parseEnhancement(const std::string& text, const char* option) {
   return e;
 }
 
-// A store built from a non-store input for the GPU path, removed when done.
-class TemporaryStore {
- public:
-  explicit TemporaryStore(const std::string& input) {
-    std::random_device random;
-    path_ = std::filesystem::temp_directory_path() /
-            fmt::format("octoray-render-{:08x}.octoray", random());
-    auto source = openVolume(input);
-    volume::BuildOptions options;
-    options.border = 2;  // central differences of +-1 voxel for shading
-    volume::buildStore(*source, path_.string(), options);
-  }
-  ~TemporaryStore() {
-    std::error_code ignored;
-    std::filesystem::remove(path_, ignored);
-  }
-  TemporaryStore(const TemporaryStore&) = delete;
-  TemporaryStore& operator=(const TemporaryStore&) = delete;
-  std::string path() const { return path_.string(); }
-
- private:
-  std::filesystem::path path_;
-};
-
 // Resident and peak resident memory of this process (MiB), from /proc/self/status.
 std::pair<double, double> residentMib() {
   std::ifstream in("/proc/self/status");
@@ -387,7 +375,7 @@ double percentile(std::vector<double> values, double p) {
   return values[lo] + (rank - static_cast<double>(lo)) * (values[hi] - values[lo]);
 }
 
-int runGpu(const Arguments& a) {
+int runGpu(const Arguments& a, std::optional<TemporaryStore>& temporary) {
   const transfer::TransferFunction tf = loadTransferFunction(a);
   // The options both renderers share, parsed once (renderOptions), then the GPU's own.
   const RenderOptions shared = renderOptions(a);
@@ -425,8 +413,7 @@ int runGpu(const Arguments& a) {
                                    : gpu::RaycastOptions::MipMethod::Exact;
 
   auto start = std::chrono::steady_clock::now();
-  std::optional<TemporaryStore> temporary;
-  if (!volume::isStoreFile(a.path)) temporary.emplace(a.path);
+  if (!volume::isStoreFile(a.path) && !temporary) temporary.emplace(a.path);
   const volume::StoreReader store(temporary ? temporary->path() : a.path);
   const double loadMs = millisecondsSince(start);
 
@@ -565,13 +552,16 @@ void checkOutputFolders(const Arguments& a) {
 
 int run(Arguments a) {
   checkOutputFolders(a);
-  resolveDefaults(a);
+  // An input that is not a store, built into a temporary one where the defaults need its
+  // histogram (kept for the GPU path, which renders it) or by the GPU path.
+  std::optional<TemporaryStore> temporary;
+  resolveDefaults(a, temporary);
   std::optional<tbb::global_control> threadLimit;
   if (a.threads > 0) {
     threadLimit.emplace(tbb::global_control::max_allowed_parallelism,
                         static_cast<std::size_t>(a.threads));
   }
-  return a.reference ? runReference(a) : runGpu(a);
+  return a.reference ? runReference(a) : runGpu(a, temporary);
 }
 
 }  // namespace octoray::render_tool

@@ -5,6 +5,7 @@ octoray-render for the 3D view). Needs ../shared/data (skips with a message wher
 import json
 import math
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -621,6 +622,12 @@ class ViewerGui(unittest.TestCase):
         self.assertGreater(covered, 0.15, "the isosurface is (nearly) empty")
         value = psnr(got, want)
         self.assertGreaterEqual(value, 40.0, f"3D isosurface vs octoray-render: PSNR {value:.1f} dB")
+        # octoray-render without --iso on the same file picks the same value.
+        p = run([os.path.join(BIN, "octoray-render"), mhd, "--mode", "iso", "--size", "32x32", "-o", vw.path("tool.png")])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        chosen = re.search(r"no --iso: using ([0-9.eE+-]+), Otsu's threshold", p.stderr)
+        self.assertIsNotNone(chosen, p.stderr)
+        self.assertAlmostEqual(float(chosen.group(1)), iso, delta=1e-6)
         ct = load_json(vw.path("ct.json"))
         self.assertEqual(ct["dataset"]["unit"], "HU")
         self.assertEqual(ct["dataset"]["voiFunction"], "LINEAR")
