@@ -551,6 +551,9 @@ class ViewerGui(unittest.TestCase):
             {"type": "action", "name": "mode", "value": "iso"},
             {"type": "wait-converged"},
             {"type": "screenshot", "view": "3d", "path": vw.path("iso.png")},
+            {"type": "action", "name": "overlays", "value": True},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "path": vw.path("labels.png")},
             *open_then(self.head_store, {"type": "dump-state", "path": vw.path("ct.json")}),
             {"type": "action", "name": "iso", "value": 500},
             *open_then(self.tilted_store, {"type": "dump-state", "path": vw.path("ct-after-chosen.json")}),
@@ -628,7 +631,22 @@ class ViewerGui(unittest.TestCase):
         chosen = re.search(r"no --iso: using ([0-9.eE+-]+), Otsu's threshold", p.stderr)
         self.assertIsNotNone(chosen, p.stderr)
         self.assertAlmostEqual(float(chosen.group(1)), iso, delta=1e-6)
+        # The labels over the views carry about a thousandth of the range in decimals (3 for
+        # [0, 0.44]) and no unit; a CT's none and HU. Drawn where they are said to be: the
+        # axial view's bottom-left corner differs from the same view without overlays.
+        labels = load_json(vw.path("labels.png.json"))
+        wl = labels["session"]["windowLevel"]
+        self.assertIn(f"W {wl['window']:.3f}  L {wl['level']:.3f}  auto", labels["views"]["axial"]["overlayText"])
+        self.assertIn(f"ISO {iso:.3f}", labels["views"]["3d"]["overlayText"])
+        self.assertEqual(mpr["views"]["axial"]["overlayText"], [])
+        rect = labels["views"]["axial"]["rect"]
+        on, off = crop(load_png(vw.path("labels.png")), rect), crop(load_png(vw.path("mpr.png")), rect)
+        corner = (slice(rect[3] - 30, rect[3]), slice(0, 160))
+        self.assertGreater(int(np.count_nonzero(np.any(on[corner] != off[corner], axis=2))), 100,
+                           "no window/level label drawn at the bottom left")
         ct = load_json(vw.path("ct.json"))
+        self.assertIn("W 80  L 40  file", ct["views"]["axial"]["overlayText"])  # the head names 40 / 80
+        self.assertIn("ISO 300 HU", ct["views"]["3d"]["overlayText"])
         self.assertEqual(ct["dataset"]["unit"], "HU")
         self.assertEqual(ct["dataset"]["voiFunction"], "LINEAR")
         self.assertEqual(ct["session"]["isoValue"], 300)

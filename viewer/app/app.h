@@ -312,6 +312,9 @@ class App {
   Controller controller_{*this};
   std::deque<InputEvent> events_;
   std::array<Rect, kViewCount> rects_;
+  // The texts drawn over each view in the last frame (drawViews), for the dumped state; never
+  // the patient's identity.
+  std::array<std::vector<std::string>, kViewCount> overlayText_;
   Rect viewArea_;
   int fbWidth_ = 0, fbHeight_ = 0;
   std::vector<int> histogram_;

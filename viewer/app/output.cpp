@@ -79,7 +79,7 @@ nlohmann::json App::stateJson() {
   for (int v = 0; v < kViewCount; ++v) {
     const ViewId id = static_cast<ViewId>(v);
     const Rect r = viewRect(id);
-    nlohmann::json view{{"rect", {r.x, r.y, r.w, r.h}}};
+    nlohmann::json view{{"rect", {r.x, r.y, r.w, r.h}}, {"overlayText", overlayText_[static_cast<std::size_t>(v)]}};
     if (isMpr(id) && mpr_[static_cast<std::size_t>(v)]) {
       const MprView& m = *mpr_[static_cast<std::size_t>(v)];
       const MprPlane& p = m.plane();

@@ -78,6 +78,13 @@ void App::drawViews() {
                     IM_COL32(45, 45, 50, 255));
   const ImVec2 mouse = ImGui::GetIO().MousePos;
   for (int v = 0; v < kViewCount; ++v) {
+    // Each text drawn over the view is also kept for the state a script dumps (overlayText_).
+    auto& drawn = overlayText_[static_cast<std::size_t>(v)];
+    drawn.clear();
+    const auto put = [&](float size, ImVec2 at, ImU32 colour, const std::string& t) {
+      drawn.push_back(t);
+      outlinedText(dl, font, size, at, colour, t);
+    };
     const ViewId id = static_cast<ViewId>(v);
     const Rect r = viewRect(id);
     if (r.w < 8 || r.h < 8) continue;
@@ -92,16 +99,16 @@ void App::drawViews() {
         dl->AddImage(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(view3d_->texture())), a, b);
       }
       if (overlays) {
-        outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
+        put(fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
         std::string line = fmt::format("{}  {}", modeName(session.mode), session.preset);
         if (session.mode == gpu::RaycastMode::Iso) line = fmt::format("iso {:.{}f}{}", session.isoValue, valueDecimals(histHi_ - histLo_), unitSuffix(valueUnit_));
         std::transform(line.begin(), line.begin() + 3, line.begin(), ::toupper);
-        outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 8 + fs), text, line);
+        put(fs, ImVec2(a.x + 8, a.y + 8 + fs), text, line);
         if (view3d_) {
           const std::string q = view3d_->converged() ? "full quality"
                                 : (controller_.dragging3d() || interactionFrames_ > 0) ? "interactive (half resolution)"
                                                                                          : "refining\u2026";
-          outlinedText(dl, font, fs * 0.9f, ImVec2(a.x + 8, b.y - fs - 6), dim, q);
+          put(fs * 0.9f, ImVec2(a.x + 8, b.y - fs - 6), dim, q);
           // The screen's right and up as patient directions.
           const gpu::Camera& c = session.camera;
           const Vec3 forward = normalize(c.target - c.eye);
@@ -109,10 +116,10 @@ void App::drawViews() {
           const Vec3 up = normalize(cross(right, forward));
           const std::string rl = orientationLabel(right), ll = orientationLabel(-1.0 * right);
           const std::string ul = orientationLabel(up), dl2 = orientationLabel(-1.0 * up);
-          outlinedText(dl, font, fs, ImVec2(b.x - textSize(font, fs, rl).x - 6, a.y + r.h * 0.5f - fs * 0.5f), dim, rl);
-          outlinedText(dl, font, fs, ImVec2(a.x + 6, a.y + r.h * 0.5f - fs * 0.5f), dim, ll);
-          outlinedText(dl, font, fs, ImVec2(a.x + r.w * 0.5f - textSize(font, fs, ul).x * 0.5f, a.y + 6), dim, ul);
-          outlinedText(dl, font, fs, ImVec2(a.x + r.w * 0.5f - textSize(font, fs, dl2).x * 0.5f, b.y - fs - 6), dim, dl2);
+          put(fs, ImVec2(b.x - textSize(font, fs, rl).x - 6, a.y + r.h * 0.5f - fs * 0.5f), dim, rl);
+          put(fs, ImVec2(a.x + 6, a.y + r.h * 0.5f - fs * 0.5f), dim, ll);
+          put(fs, ImVec2(a.x + r.w * 0.5f - textSize(font, fs, ul).x * 0.5f, a.y + 6), dim, ul);
+          put(fs, ImVec2(a.x + r.w * 0.5f - textSize(font, fs, dl2).x * 0.5f, b.y - fs - 6), dim, dl2);
         }
       }
       if (!view3d_) {
@@ -124,7 +131,7 @@ void App::drawViews() {
         else if (dataset_->state() == Dataset::State::Failed) msg = "Nothing to show: see the message above";
         else msg = "The 3D view could not start: see the message above";
         const ImVec2 ts = textSize(font, fs, msg);
-        outlinedText(dl, font, fs, ImVec2(a.x + (r.w - ts.x) * 0.5f, a.y + (r.h - ts.y) * 0.5f), text, msg);
+        put(fs, ImVec2(a.x + (r.w - ts.x) * 0.5f, a.y + (r.h - ts.y) * 0.5f), text, msg);
         if (dataset_ && dataset_->state() == Dataset::State::Importing) {
           const float w = std::min(300.0f, r.w - 40.0f), y = a.y + (r.h + ts.y) * 0.5f + 12;
           const float x0 = a.x + (r.w - w) * 0.5f;
@@ -169,27 +176,27 @@ void App::drawViews() {
         const std::string right = orientationLabel(p.right), left = orientationLabel(-1.0 * p.right);
         const std::string bottom = orientationLabel(p.down), top = orientationLabel(-1.0 * p.down);
         const float big = fs * 1.15f;
-        outlinedText(dl, font, big, ImVec2(b.x - textSize(font, big, right).x - 8, a.y + r.h * 0.5f - big * 0.5f), text, right);
-        outlinedText(dl, font, big, ImVec2(a.x + 8, a.y + r.h * 0.5f - big * 0.5f), text, left);
-        outlinedText(dl, font, big, ImVec2(a.x + r.w * 0.5f - textSize(font, big, top).x * 0.5f, a.y + 6), text, top);
-        outlinedText(dl, font, big, ImVec2(a.x + r.w * 0.5f - textSize(font, big, bottom).x * 0.5f, b.y - big - 6), text, bottom);
+        put(big, ImVec2(b.x - textSize(font, big, right).x - 8, a.y + r.h * 0.5f - big * 0.5f), text, right);
+        put(big, ImVec2(a.x + 8, a.y + r.h * 0.5f - big * 0.5f), text, left);
+        put(big, ImVec2(a.x + r.w * 0.5f - textSize(font, big, top).x * 0.5f, a.y + 6), text, top);
+        put(big, ImVec2(a.x + r.w * 0.5f - textSize(font, big, bottom).x * 0.5f, b.y - big - 6), text, bottom);
         // Name, slice position, slab.
-        outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
-        outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 8 + fs), text,
+        put(fs, ImVec2(a.x + 8, a.y + 6), viewColour(id), viewTitle(id));
+        put(fs, ImVec2(a.x + 8, a.y + 8 + fs), text,
                      positionText(p.normal, dot(session.crosshair, p.normal)));
         if (session.slab != SlabMode::None) {
           std::string slab = fmt::format("{} slab {:.1f} mm", slabModeName(session.slab), session.slabMm);
           std::transform(slab.begin(), slab.begin() + 5, slab.begin(), ::toupper);
-          outlinedText(dl, font, fs, ImVec2(a.x + 8, a.y + 10 + 2 * fs), text, slab);
+          put(fs, ImVec2(a.x + 8, a.y + 10 + 2 * fs), text, slab);
         }
         // Window/level (bottom left), the level of detail while loading.
         const int decimals = labelDecimals();
         std::string wl = fmt::format("W {:.{}f}  L {:.{}f}", session.wl.window, decimals, session.wl.level, decimals);
         if (!session.wlPreset.empty()) wl += "  " + session.wlPreset;
-        outlinedText(dl, font, fs, ImVec2(a.x + 8, b.y - fs - 6), text, wl);
+        put(fs, ImVec2(a.x + 8, b.y - fs - 6), text, wl);
         if (!mv->complete()) {
           const std::string loading = mv->fromPreview() ? "import preview" : "loading finer data\u2026";
-          outlinedText(dl, font, fs * 0.9f, ImVec2(a.x + 8, b.y - 2 * fs - 8), dim, loading);
+          put(fs * 0.9f, ImVec2(a.x + 8, b.y - 2 * fs - 8), dim, loading);
         }
         // Scale bar (bottom right): about a fifth of the view's width.
         const double mm = niceLength(0.2 * r.w * p.mmPerPixel);
@@ -199,7 +206,7 @@ void App::drawViews() {
         dl->AddLine(ImVec2(x0, y - 5), ImVec2(x0, y + 1), text, 2.0f);
         dl->AddLine(ImVec2(x1, y - 5), ImVec2(x1, y + 1), text, 2.0f);
         const std::string label = fmt::format("{:g} mm", mm);
-        outlinedText(dl, font, fs * 0.9f, ImVec2(x1 - textSize(font, fs * 0.9f, label).x, y - fs - 6), text, label);
+        put(fs * 0.9f, ImVec2(x1 - textSize(font, fs * 0.9f, label).x, y - fs - 6), text, label);
         // HU and position under the cursor.
         if (r.contains(mouse.x, mouse.y) && !shot_) {
           const int mx = static_cast<int>(mouse.x) - r.x, my = static_cast<int>(mouse.y) - r.y;
@@ -209,7 +216,7 @@ void App::drawViews() {
                                         ? fmt::format("({:.1f}, {:.1f}, {:.1f}) mm LPS", q.x, q.y, q.z)
                                         : fmt::format("{:.{}f}{}   ({:.1f}, {:.1f}, {:.1f}) mm LPS", hu, decimals,
                                                       unitSuffix(valueUnit_), q.x, q.y, q.z);
-          outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, probe).x - 8, a.y + 6), dim, probe);
+          put(fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, probe).x - 8, a.y + 6), dim, probe);
         }
       }
       if (session.clip.enabled) {
@@ -243,6 +250,7 @@ void App::drawViews() {
           who += "\nstudy " + date(person.studyDate) + "  " + person.studyDescription;
           who += "\n" + info.description + "  " + info.modality;
         }
+        // Never recorded: the state a script dumps carries no patient identity.
         outlinedText(dl, font, fs * 0.9f, ImVec2(b.x - textSize(font, fs * 0.9f, who).x - 8, a.y + 8 + fs), dim, who);
       }
       // Measurements of this view (and the one being drawn).
@@ -292,7 +300,7 @@ void App::drawViews() {
           float lx = pts.back().x + 8, ly = pts.back().y + 4;
           if (lx + size.x > b.x - 4) lx = std::max(a.x + 4, pts.back().x - 8 - size.x);
           if (ly + size.y > b.y - 4) ly = std::max(a.y + 4, pts.back().y - 4 - size.y);
-          outlinedText(dl, font, fs * 0.9f, ImVec2(lx, ly), mc, label);
+          put(fs * 0.9f, ImVec2(lx, ly), mc, label);
         }
       };
       for (const Measurement& m : session.measurements) drawMeasurement(m, true);
@@ -300,7 +308,7 @@ void App::drawViews() {
     } else if (!mv || !mv->texture()) {
       const std::string msg = dataset_ ? "" : "No volume";
       const ImVec2 ts = textSize(font, fs, msg);
-      outlinedText(dl, font, fs, ImVec2(a.x + (r.w - ts.x) * 0.5f, a.y + (r.h - ts.y) * 0.5f), dim, msg);
+      put(fs, ImVec2(a.x + (r.w - ts.x) * 0.5f, a.y + (r.h - ts.y) * 0.5f), dim, msg);
     }
     dl->PopClipRect();
   }
