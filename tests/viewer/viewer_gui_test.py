@@ -1080,6 +1080,13 @@ class ViewerGui(unittest.TestCase):
             r = views[view]["rect"]
             self.assertTrue(np.array_equal(crop(plain, r), crop(unasked, r)), f"{view}: identity in a screenshot")
             self.assertFalse(np.array_equal(crop(plain, r), crop(asked, r)), f"{view}: identity not shown when asked")
+        # Shown on screen, it is still not in the state the viewer writes (its texts are listed
+        # there): the head's patient ID is PLASTIC.
+        import pydicom
+        person = pydicom.dcmread(os.path.join(HEAD, sorted(n for n in os.listdir(HEAD) if n != "DIRFILE")[0]),
+                                 stop_before_pixels=True)
+        with open(vw.path("asked.png.json")) as f:
+            self.assertNotIn(str(person.PatientID), f.read())
         # Opened again, through a copy at another path: same content, same store.
         copy = vw.path("head-copy")
         shutil.copytree(HEAD, copy)
