@@ -5,31 +5,23 @@
 
 #include <algorithm>
 #include <cmath>
-#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <vector>
 
 #include "memory_volume.h"
-#include "octoray/volume/store_builder.h"
 #include "octoray/volume/store_reader.h"
 #include "octoray/volume/value_histogram.h"
-#include "test_paths.h"
+#include "test_stores.h"
 
 namespace octoray::volume {
 namespace {
 
-namespace fs = std::filesystem;
 using test::MemoryVolume;
 
+// The store of `volume` with 32^3 bricks (test_stores.h).
 std::string build(MemoryVolume& volume, const std::string& name) {
-  const fs::path dir = test::freshTempDir("value_histogram_" + name);
-  const std::string path = (dir / "store.octoray").string();
-  BuildOptions options;
-  options.brickSize = 32;
-  options.memoryBudgetBytes = uint64_t{256} << 20;
-  buildStore(volume, path, options);
-  return path;
+  return test::buildTestStore(volume, "value_histogram_" + name, 32, 1).string();
 }
 
 // 256 bins over [lo, hi], counted here.
