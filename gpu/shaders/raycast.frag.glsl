@@ -15,9 +15,10 @@
 //
 // The per-mode and per-feature functions live in the raycast_*.glsl parts, pasted in where
 // this file #includes them (GlProgram::build resolves the lines; compile errors name the part):
-// classify (the transfer function), pool (bricks, values, gradients), shading, iso, mip (one
-// leaf's maximum) and image_adaptive (the pyramid's finer levels). The leaf walk and the DVR
-// and isosurface marches stay here: they share the walk's local state.
+// classify (the transfer function), pool (bricks, values, gradients), shading, iso and mip (one
+// leaf's maximum). The leaf walk and the DVR and isosurface marches stay here: they share the
+// walk's local state. The image pyramid's interpolated pixels are another program's
+// (image_adaptive.frag.glsl), so that the pixels not cast never run this one.
 //
 // Units: t is the distance along the ray in patient mm; octree space q is the unit cube of
 // the index; texel space is the pool texture's (texel centres at i + 0.5).
@@ -42,19 +43,19 @@ uniform float uPixelScale;   // perspective: pixel size per mm of depth; orthogr
 #ifdef IMAGE_ADAPTIVE
 // Adaptive sampling in the image plane (Kraus et al. 2007, paper 002), coarse to fine: pixel
 // (x, y) of pyramid level l is the ray through image pixel (2^l x, 2^l y). The coarsest level
-// casts every ray; on each finer one a pixel whose ray the level above cast is copied, and the
-// others are interpolated linearly between the two or four nearest pixels of the level above
-// unless the 2 x 2 pixels of the level above around them differ by more than the error bound
-// in any premultiplied channel (then the block's three new rays are cast); the bound is
-// relaxed where the paper's oracle says the data allows it: by d / spacing, where d is the
-// smallest projected voxel (pixels) of the leaves the four rays sampled and spacing = 2^(l+1)
-// is the distance between them.
+// casts every ray; on each finer one image_adaptive.frag.glsl first copies or interpolates
+// from the level above what the error bound allows and leaves the stencil at 0 where it does
+// not, and this pass casts only those rays: the early stencil test skips the others before
+// any of this shader runs. With early tests gl_FragDepth has no effect, so the depth-buffer
+// value goes to outAux.w, and depth_from_aux.frag.glsl fills the depth buffer from it.
+layout(early_fragment_tests) in;
 uniform float uLevelScale;    // 2^l
-uniform int uSynthesize;      // 0: cast every pixel (the coarsest level)
-uniform sampler2D uCoarseColor, uCoarseAux;  // level l + 1
-uniform float uAdaptiveThreshold;
 // [0] rays cast, [1] samples taken (with STATS)
 layout(std430, binding = 5) buffer AdaptiveCounters { uint adaptiveCounters[]; };
+float rayDepth;               // this pixel's depth-buffer value
+#define FRAG_DEPTH rayDepth
+#else
+#define FRAG_DEPTH gl_FragDepth
 #endif
 #ifdef STATS
 layout(std430, binding = 3) buffer Touched { uint touched[]; };
@@ -132,11 +133,9 @@ vec4 stats;  // this pixel's counters (outStats), raised by the parts below
 #include "raycast_shading.glsl"
 #include "raycast_iso.glsl"
 #include "raycast_mip.glsl"
-#include "raycast_image_adaptive.glsl"
 
 void main() {
 #ifdef IMAGE_ADAPTIVE
-  if (uSynthesize != 0 && synthesizedFromCoarse()) return;
   // The ray through the centre of image pixel (2^l x, 2^l y).
   vec2 pixel = floor(gl_FragCoord.xy) * uLevelScale + 0.5;
   float oracle = kInfinity;  // the smallest projected voxel (pixels) of the leaves sampled
@@ -157,7 +156,7 @@ void main() {
 
   outColor = vec4(0.0);
   outAux = vec4(kInfinity, 0.0, kInfinity, 1.0);
-  gl_FragDepth = 1.0;
+  FRAG_DEPTH = 1.0;
 #ifdef IMAGE_ADAPTIVE
   atomicAdd(adaptiveCounters[0], 1u);
 #endif
@@ -537,14 +536,14 @@ void main() {
   if (done) {
     float z = max(tLast * dot(dir, uForward), uNear);
 #ifdef PERSPECTIVE
-    gl_FragDepth = clamp((1.0 / z - 1.0 / uNear) / (1.0 / uFar - 1.0 / uNear), 0.0, 1.0);
+    FRAG_DEPTH = clamp((1.0 / z - 1.0 / uNear) / (1.0 / uFar - 1.0 / uNear), 0.0, 1.0);
 #else
-    gl_FragDepth = clamp((z - uNear) / (uFar - uNear), 0.0, 1.0);
+    FRAG_DEPTH = clamp((z - uNear) / (uFar - uNear), 0.0, 1.0);
 #endif
   }
 #ifdef IMAGE_ADAPTIVE
   outAux.z = oracle;
-  outAux.w = gl_FragDepth;
+  outAux.w = rayDepth;
 #ifdef STATS
   atomicAdd(adaptiveCounters[1], uint(stats.x));
 #endif

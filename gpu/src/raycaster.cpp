@@ -53,10 +53,10 @@ struct Raycaster::Impl {
   GlTexture preintegration{GL_TEXTURE_2D};  // transfer::SegmentExtinctionTable
   std::array<float, 2> preintegrationRange{0, 1};
   GlBuffer nodeBuffer, leafBuffer, tfPointBuffer, touchedBuffer, feedbackBuffer, adaptiveBuffer;
-  // Image-adaptive sampling: levels 1 .. L of the image pyramid (colour, aux), level 0 being
-  // the targets below.
+  // Image-adaptive sampling: levels 1 .. L of the image pyramid (colour, aux and the stencil
+  // that marks the pixels interpolated), level 0 being the targets below.
   struct PyramidLevel {
-    GlTexture color{GL_TEXTURE_2D}, aux{GL_TEXTURE_2D};
+    GlTexture color{GL_TEXTURE_2D}, aux{GL_TEXTURE_2D}, depthStencil{GL_TEXTURE_2D};
     GlFramebuffer fbo;
     int width = 0, height = 0;
   };
@@ -64,7 +64,8 @@ struct Raycaster::Impl {
   void ensurePyramid(int width, int height, int levels);
   GlVertexArray vao;
   GlFramebuffer fbo;
-  std::vector<GlTexture> targets;  // colour, aux, stats, depth
+  GlFramebuffer depthFbo;          // targets[3] alone: the image-adaptive frame's depth pass
+  std::vector<GlTexture> targets;  // colour, aux, stats, depth + stencil
   int targetWidth = 0, targetHeight = 0;
   std::map<std::string, GlProgram> programs;
 
@@ -94,7 +95,9 @@ struct Raycaster::Impl {
   }
 
   void ensureTargets(int width, int height);
-  GlProgram& program(const std::vector<std::string>& defines);
+  // The program of gpu/shaders/`fragment` (with fullscreen.vert.glsl) for `defines`, built once.
+  GlProgram& program(const std::vector<std::string>& defines,
+                     std::string_view fragment = "raycast.frag.glsl");
   std::vector<std::string> defines(const transfer::TransferFunction& tf,
                                    const RaycastOptions& options, Projection projection,
                                    bool feedback) const;
@@ -146,7 +149,7 @@ Raycaster::Impl::RayUniforms Raycaster::Impl::rayUniforms(const Camera& camera) 
 void Raycaster::Impl::ensureTargets(int width, int height) {
   if (width == targetWidth && height == targetHeight && !targets.empty()) return;
   targets.clear();
-  const GLenum formats[4] = {GL_RGBA32F, GL_RGBA32F, GL_RGBA32F, GL_DEPTH_COMPONENT32F};
+  const GLenum formats[4] = {GL_RGBA32F, GL_RGBA32F, GL_RGBA32F, GL_DEPTH32F_STENCIL8};
   for (int i = 0; i < 4; ++i) {
     targets.emplace_back(GL_TEXTURE_2D);
     glTextureStorage2D(targets.back().id(), 1, formats[i], width, height);
@@ -154,10 +157,15 @@ void Raycaster::Impl::ensureTargets(int width, int height) {
   for (int i = 0; i < 3; ++i) {
     glNamedFramebufferTexture(fbo.id(), static_cast<GLenum>(GL_COLOR_ATTACHMENT0 + i), targets[static_cast<std::size_t>(i)].id(), 0);
   }
-  glNamedFramebufferTexture(fbo.id(), GL_DEPTH_ATTACHMENT, targets[3].id(), 0);
-  const GLenum status = glCheckNamedFramebufferStatus(fbo.id(), GL_FRAMEBUFFER);
-  if (status != GL_FRAMEBUFFER_COMPLETE) {
-    throw Error("", fmt::format("GPU raycaster: framebuffer {}x{} incomplete (0x{:x})", width, height, status));
+  glNamedFramebufferTexture(fbo.id(), GL_DEPTH_STENCIL_ATTACHMENT, targets[3].id(), 0);
+  glNamedFramebufferTexture(depthFbo.id(), GL_DEPTH_STENCIL_ATTACHMENT, targets[3].id(), 0);
+  glNamedFramebufferDrawBuffer(depthFbo.id(), GL_NONE);
+  glNamedFramebufferReadBuffer(depthFbo.id(), GL_NONE);
+  for (const GlFramebuffer* f : {&fbo, &depthFbo}) {
+    const GLenum status = glCheckNamedFramebufferStatus(f->id(), GL_FRAMEBUFFER);
+    if (status != GL_FRAMEBUFFER_COMPLETE) {
+      throw Error("", fmt::format("GPU raycaster: framebuffer {}x{} incomplete (0x{:x})", width, height, status));
+    }
   }
   targetWidth = width;
   targetHeight = height;
@@ -178,8 +186,10 @@ void Raycaster::Impl::ensurePyramid(int width, int height, int levels) {
     p->height = (height + (1 << l) - 1) >> l;
     glTextureStorage2D(p->color.id(), 1, GL_RGBA32F, p->width, p->height);
     glTextureStorage2D(p->aux.id(), 1, GL_RGBA32F, p->width, p->height);
+    glTextureStorage2D(p->depthStencil.id(), 1, GL_DEPTH32F_STENCIL8, p->width, p->height);
     glNamedFramebufferTexture(p->fbo.id(), GL_COLOR_ATTACHMENT0, p->color.id(), 0);
     glNamedFramebufferTexture(p->fbo.id(), GL_COLOR_ATTACHMENT1, p->aux.id(), 0);
+    glNamedFramebufferTexture(p->fbo.id(), GL_DEPTH_STENCIL_ATTACHMENT, p->depthStencil.id(), 0);
     const GLenum buffers[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
     glNamedFramebufferDrawBuffers(p->fbo.id(), 2, buffers);
     const GLenum status = glCheckNamedFramebufferStatus(p->fbo.id(), GL_FRAMEBUFFER);
@@ -191,12 +201,12 @@ void Raycaster::Impl::ensurePyramid(int width, int height, int levels) {
   throwOnGlError("allocating the image pyramid");
 }
 
-GlProgram& Raycaster::Impl::program(const std::vector<std::string>& defs) {
-  std::string key;
-  for (const std::string& d : defs) key += d + ";";
+GlProgram& Raycaster::Impl::program(const std::vector<std::string>& defs, std::string_view fragment) {
+  std::string key(fragment);
+  for (const std::string& d : defs) key += ";" + d;
   auto it = programs.find(key);
   if (it == programs.end()) {
-    it = programs.emplace(key, GlProgram::build("fullscreen.vert.glsl", "raycast.frag.glsl", defs)).first;
+    it = programs.emplace(key, GlProgram::build("fullscreen.vert.glsl", fragment, defs)).first;
   }
   return it->second;
 }
@@ -580,7 +590,6 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
     const uint32_t zeros[2] = {0, 0};
     glNamedBufferData(im.adaptiveBuffer.id(), sizeof(zeros), zeros, GL_DYNAMIC_READ);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 5, im.adaptiveBuffer.id());
-    glUniform1f(prog.uniform("uAdaptiveThreshold"), static_cast<float>(options.imageAdaptive));
     im.ensurePyramid(width, height, options.imageAdaptiveLevels);
   }
 
@@ -597,41 +606,86 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
 
   glFinish();
   const auto drawStart = std::chrono::steady_clock::now();
+  // The image-adaptive passes (see "Adaptive sampling in the image plane" in raycast.frag.glsl).
+  GlProgram* refineProg = nullptr;
+  GlProgram* depthProg = nullptr;
   if (adaptive) {
-    // The pyramid's levels, coarsest first, each interpolating from the one above where it
-    // may; level 0 (the image) is drawn below into the frame's targets.
-    const int levels = options.imageAdaptiveLevels;
-    for (int l = levels; l >= 1; --l) {
+    std::vector<std::string> refineDefines;
+    if (options.stats) refineDefines.emplace_back("STATS");
+    refineProg = &im.program(refineDefines, "image_adaptive.frag.glsl");
+    depthProg = &im.program({}, "depth_from_aux.frag.glsl");
+    glUseProgram(refineProg->id());
+    glUniform1f(refineProg->uniform("uAdaptiveThreshold"), static_cast<float>(options.imageAdaptive));
+    glUniform1i(refineProg->uniform("uCoarseColor"), 6);
+    glUniform1i(refineProg->uniform("uCoarseAux"), 7);
+    glUseProgram(depthProg->id());
+    glUniform1i(depthProg->uniform("uAux"), 6);
+    glUseProgram(prog.id());
+  }
+  // Level l of the pyramid into `target`, which is bound (within the scissor, if any): the
+  // pixels the level above allows are interpolated (stencil 1), then the others are cast.
+  const auto drawLevel = [&](int l, const GlFramebuffer& target) {
+    const GLint zero = 0;
+    glDisable(GL_DEPTH_TEST);
+    glDepthMask(GL_FALSE);
+    glEnable(GL_STENCIL_TEST);
+    glStencilMask(0xFF);
+    glClearNamedFramebufferiv(target.id(), GL_STENCIL, 0, &zero);
+    if (l < options.imageAdaptiveLevels) {
+      const Impl::PyramidLevel& above = *im.pyramid[static_cast<std::size_t>(l)];
+      glBindTextureUnit(6, above.color.id());
+      glBindTextureUnit(7, above.aux.id());
+      glUseProgram(refineProg->id());
+      glUniform1f(refineProg->uniform("uLevelScale"), static_cast<float>(1 << l));
+      glStencilFunc(GL_ALWAYS, 1, 0xFF);
+      glStencilOp(GL_KEEP, GL_KEEP, GL_REPLACE);
+      glDrawArrays(GL_TRIANGLES, 0, 3);
+      glUseProgram(prog.id());
+    }
+    glUniform1f(prog.uniform("uLevelScale"), static_cast<float>(1 << l));
+    glStencilFunc(GL_EQUAL, 0, 0xFF);
+    glStencilOp(GL_KEEP, GL_KEEP, GL_KEEP);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glDisable(GL_STENCIL_TEST);
+    glEnable(GL_DEPTH_TEST);
+    glDepthMask(GL_TRUE);
+  };
+  // The whole image (within the scissor, if any).
+  const auto drawImage = [&] {
+    if (!adaptive) {
+      glDrawArrays(GL_TRIANGLES, 0, 3);
+      return;
+    }
+    drawLevel(0, im.fbo);
+    // The depth buffer from the depth values the passes carried in aux.w.
+    glBindFramebuffer(GL_FRAMEBUFFER, im.depthFbo.id());
+    glBindTextureUnit(6, im.targets[1].id());
+    glUseProgram(depthProg->id());
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glUseProgram(prog.id());
+    glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
+  };
+  if (adaptive) {
+    // The levels above the image, coarsest first; each but the coarsest interpolates from the
+    // one above where it may.
+    for (int l = options.imageAdaptiveLevels; l >= 1; --l) {
       const Impl::PyramidLevel& p = *im.pyramid[static_cast<std::size_t>(l - 1)];
       glBindFramebuffer(GL_FRAMEBUFFER, p.fbo.id());
       glViewport(0, 0, p.width, p.height);
-      glUniform1f(prog.uniform("uLevelScale"), static_cast<float>(1 << l));
-      glUniform1i(prog.uniform("uSynthesize"), l < levels ? 1 : 0);
-      if (l < levels) {
-        const Impl::PyramidLevel& above = *im.pyramid[static_cast<std::size_t>(l)];
-        glBindTextureUnit(6, above.color.id());
-        glBindTextureUnit(7, above.aux.id());
-      }
-      glUniform1i(prog.uniform("uCoarseColor"), 6);
-      glUniform1i(prog.uniform("uCoarseAux"), 7);
-      glDrawArrays(GL_TRIANGLES, 0, 3);
+      drawLevel(l, p.fbo);
     }
     glBindFramebuffer(GL_FRAMEBUFFER, im.fbo.id());
     glViewport(0, 0, width, height);
-    glUniform1f(prog.uniform("uLevelScale"), 1.0f);
-    glUniform1i(prog.uniform("uSynthesize"), 1);
-    glBindTextureUnit(6, im.pyramid[0]->color.id());
-    glBindTextureUnit(7, im.pyramid[0]->aux.id());
   }
   if (tiles == nullptr || tiles->tiles.empty()) {
-    glDrawArrays(GL_TRIANGLES, 0, 3);
+    drawImage();
   } else {
     // Tile by tile, each followed by the caller's work on it (the occlusion queries).
     glEnable(GL_SCISSOR_TEST);
     for (std::size_t i = 0; i < tiles->tiles.size(); ++i) {
       const ScreenTile& t = tiles->tiles[i];
       glScissor(t.x, t.y, t.width, t.height);
-      glDrawArrays(GL_TRIANGLES, 0, 3);
+      drawImage();
       if (tiles->afterTile) {
         tiles->afterTile(i);
         glUseProgram(prog.id());

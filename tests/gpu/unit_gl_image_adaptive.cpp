@@ -69,6 +69,41 @@ TEST_F(ImageAdaptiveTest, AVanishingBoundIsExactWithFewerRays) {
   EXPECT_TRUE(context_->takeErrors().empty());
 }
 
+// The adaptive passes carry each pixel's depth in the aux target and fill the depth buffer
+// from it at the end (raycast.frag.glsl's early stencil test leaves gl_FragDepth unused); the
+// occlusion queries test the cut's bricks against that buffer. With a vanishing bound the
+// buffer must be the full frame's: the same leaves hidden, the same working set, the same
+// picture.
+TEST_F(ImageAdaptiveTest, OcclusionQueriesSeeTheSameDepthAsWithEveryRayCast) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const volume::StoreReader store(phantomStore().string());
+  RendererConfig config;
+  config.visibility = Visibility::Occlusion;
+  config.visibilityThreshold = 1;
+  const Camera camera = view(store, 128);
+  const transfer::TransferFunction tf = transfer::findPreset("bone");
+  RaycastOptions options;
+  options.lodPixels = 0;
+  GpuRenderer fullRenderer(store, config);
+  const Frame full = fullRenderer.render(camera, tf, options);
+  options.imageAdaptive = 1e-12;
+  GpuRenderer adaptiveRenderer(store, config);
+  const Frame adaptive = adaptiveRenderer.render(camera, tf, options);
+  const WorkingSetStats& f = full.stats.workingSet;
+  const WorkingSetStats& a = adaptive.stats.workingSet;
+  std::printf("hidden leaves: every ray cast %lld, adaptive %lld; bricks %lld / %lld; rays %lld / %lld\n",
+              static_cast<long long>(f.hiddenLeaves), static_cast<long long>(a.hiddenLeaves),
+              static_cast<long long>(full.stats.workingSetBricks), static_cast<long long>(adaptive.stats.workingSetBricks),
+              static_cast<long long>(full.stats.raysCast), static_cast<long long>(adaptive.stats.raysCast));
+  EXPECT_GT(f.hiddenLeaves, 0) << "the bone hides some of the cut, or this test shows nothing";
+  EXPECT_LT(f.hiddenLeaves, f.leaves);
+  EXPECT_EQ(a.hiddenLeaves, f.hiddenLeaves);
+  EXPECT_EQ(adaptive.stats.workingSetBricks, full.stats.workingSetBricks);
+  EXPECT_EQ(adaptive.image.rgba, full.image.rgba);
+  EXPECT_LT(adaptive.stats.raysCast, full.stats.raysCast);
+  EXPECT_TRUE(context_->takeErrors().empty());
+}
+
 TEST_F(ImageAdaptiveTest, DefaultBoundHalvesTheRaysWithinADecibelOfTheTruth) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const volume::StoreReader store(phantomStore().string());
