@@ -208,7 +208,11 @@ class Bench:
                          ("step 2vox + ia 0.05", ["--step", 2 * s, "--image-adaptive", 0.05]),
                          ("step 4vox + ia 0.05", ["--step", 4 * s, "--image-adaptive", 0.05]),
                          ("step 2vox + ia 0.1", ["--step", 2 * s, "--image-adaptive", 0.1]),
-                         ("step 4vox + ia 0.1", ["--step", 4 * s, "--image-adaptive", 0.1])],
+                         ("step 4vox + ia 0.1", ["--step", 4 * s, "--image-adaptive", 0.1]),
+                         ("step 2vox + ia 0.3", ["--step", 2 * s, "--image-adaptive", 0.3]),
+                         # a bound of 1 is never exceeded (premultiplied channels): 1/16 of the
+                         # rays, the rest interpolated, as VTK CPU's image sample distance 4
+                         ("step 2vox + ia 1", ["--step", 2 * s, "--image-adaptive", 1])],
             "gradients": [("precomputed", ["--gradient-pool"])],
             "bricks": [("float32", [])],
             "shading": [("off", ["--shading", "off"]), ("on", ["--shading", "on"])],
