@@ -12,7 +12,7 @@ about time: CI runs `--quick` so the script cannot rot.
 
 Usage: bench/accuracy.py BUILD_DIR OUT_DIR [--quick] [--scenes head,phantom512[,big]]
            [--modes dvr-bone,dvr-soft,iso,mip] [--views 3|1,2] [--size 512] [--frames 5]
-           [--big STORE [--big-zoom 6]] [--no-vtk] [--no-scaling] [--knobs step,lod,...]
+           [--big STORE [--big-zoom 6]] [--no-vtk] [--vtk-mappers gpu,cpu] [--no-scaling] [--knobs step,lod,...]
 The scene 'big' (the 8 GiB phantom, --big) is viewed zoomed in (--big-zoom): its truth is the
 converged reference over the leaf bricks in view only (octoray-render --reference
 --frustum-cut; the whole volume would need 17 GiB of floats), and VTK, which needs the whole
@@ -212,7 +212,16 @@ class Bench:
                          ("step 2vox + ia 0.3", ["--step", 2 * s, "--image-adaptive", 0.3]),
                          # a bound of 1 is never exceeded (premultiplied channels): 1/16 of the
                          # rays, the rest interpolated, as VTK CPU's image sample distance 4
-                         ("step 2vox + ia 1", ["--step", 2 * s, "--image-adaptive", 1])],
+                         ("step 2vox + ia 1", ["--step", 2 * s, "--image-adaptive", 1]),
+                         # one level above the image, nothing refined: a quarter of the rays,
+                         # cast densely (no partly empty SIMD vectors), as VTK CPU's image
+                         # sample distance 2
+                         ("step 1vox + ia 1 L1", ["--step", s, "--image-adaptive", 1,
+                                                  "--image-adaptive-levels", 1]),
+                         ("step 1.5vox + ia 1 L1", ["--step", 1.5 * s, "--image-adaptive", 1,
+                                                    "--image-adaptive-levels", 1]),
+                         ("step 2vox + ia 1 L1", ["--step", 2 * s, "--image-adaptive", 1,
+                                                  "--image-adaptive-levels", 1])],
             "gradients": [("precomputed", ["--gradient-pool"])],
             "bricks": [("float32", [])],
             "shading": [("off", ["--shading", "off"]), ("on", ["--shading", "on"])],
@@ -238,6 +247,7 @@ class Bench:
             mappers = ["gpu"] if mode == "iso" else ["gpu", "cpu"]
         else:
             mappers = ["gpu", "cpu"]
+        mappers = [m for m in mappers if m in self.args.vtk_mappers.split(",")]
         az, el = VIEWS[view]
         for mapper in mappers:
             settings = [(f"{f}vox", ["--step", f * spacing]) for f in (0.25, 0.5, 1.0, 2.0)]
@@ -358,6 +368,7 @@ def parse():
     p.add_argument("--big-zoom", type=float, default=6.0,
                    help="zoom of the scene 'big' (its truth reads the leaf bricks in view)")
     p.add_argument("--no-vtk", action="store_true")
+    p.add_argument("--vtk-mappers", default="gpu,cpu", help="which of VTK's mappers run (gpu, cpu or both)")
     p.add_argument("--no-scaling", action="store_true")
     p.add_argument("--scale-timeout", type=int, default=900)
     args = p.parse_args()
