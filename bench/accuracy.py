@@ -214,8 +214,7 @@ class Bench:
                          # rays, the rest interpolated, as VTK CPU's image sample distance 4
                          ("step 2vox + ia 1", ["--step", 2 * s, "--image-adaptive", 1]),
                          # one level above the image, nothing refined: a quarter of the rays,
-                         # cast densely (no partly empty SIMD vectors), as VTK CPU's image
-                         # sample distance 2
+                         # the rest interpolated, as VTK CPU's image sample distance 2
                          ("step 1vox + ia 1 L1", ["--step", s, "--image-adaptive", 1,
                                                   "--image-adaptive-levels", 1]),
                          ("step 1.5vox + ia 1 L1", ["--step", 1.5 * s, "--image-adaptive", 1,
@@ -243,11 +242,9 @@ class Bench:
 
     # ---- VTK ----
     def vtk(self, scene, store, mode, view, truth, spacing):
-        if mode == "dvr-soft" or (mode == "iso"):
-            mappers = ["gpu"] if mode == "iso" else ["gpu", "cpu"]
-        else:
-            mappers = ["gpu", "cpu"]
-        mappers = [m for m in mappers if m in self.args.vtk_mappers.split(",")]
+        # VTK CPU has no isosurface mode
+        mappers = [m for m in (["gpu"] if mode == "iso" else ["gpu", "cpu"])
+                   if m in self.args.vtk_mappers.split(",")]
         az, el = VIEWS[view]
         for mapper in mappers:
             settings = [(f"{f}vox", ["--step", f * spacing]) for f in (0.25, 0.5, 1.0, 2.0)]
