@@ -1,4 +1,5 @@
-// The main() of every test binary: GoogleTest's, and then waiting for TBB's worker threads to
+// The main() of every test binary: GoogleTest's, with a passed test's temporary folders
+// removed (test_paths.h), and then waiting for TBB's worker threads to
 // end before the process exits (log4cplus's pool, which OpenVDB brings, is joined by an exit
 // handler of the same cli_support.cpp). Left to themselves they are torn down by static
 // destructors while LeakSanitizer's exit-time check is stopping every thread. (The tracer
@@ -8,9 +9,11 @@
 #include <gtest/gtest.h>
 
 #include "cli_support.h"
+#include "test_paths.h"
 
 int main(int argc, char** argv) {
   testing::InitGoogleTest(&argc, argv);
+  octoray::test::removeTempDirsOfPassedTests();
   const octoray::cli::WorkerThreadsJoinedAtExit joined;
   return RUN_ALL_TESTS();
 }
