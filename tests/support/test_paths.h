@@ -20,7 +20,8 @@ std::filesystem::path pydicomTestFiles();
 // when it fails.
 std::filesystem::path freshTempDir(const std::string& name);
 // Installs the listener that removes a passed test's folders: every suite's main() does, so a
-// full run does not leave gigabytes of stores and archives behind (3.2 GB under ASan, stop 36).
+// full run does not leave gigabytes of stores and archives behind (3.2 GB under ASan before
+// 2026-12-06).
 // OCTORAY_KEEP_TEST_TMP=1 keeps them all.
 void removeTempDirsOfPassedTests();
 // The built tool `name` (e.g. "octoray-import") in the build tree's bin folder.
