@@ -1,5 +1,5 @@
-// The main() of every test binary: GoogleTest's, with a passed test's temporary folders
-// removed (test_paths.h), and then waiting for TBB's worker threads to
+// The main() of every test binary: GoogleTest's, with the temporary folders of a run whose
+// tests all passed removed (test_paths.h), and then waiting for TBB's worker threads to
 // end before the process exits (log4cplus's pool, which OpenVDB brings, is joined by an exit
 // handler of the same cli_support.cpp). Left to themselves they are torn down by static
 // destructors while LeakSanitizer's exit-time check is stopping every thread. (The tracer
@@ -13,7 +13,7 @@
 
 int main(int argc, char** argv) {
   testing::InitGoogleTest(&argc, argv);
-  octoray::test::removeTempDirsOfPassedTests();
+  octoray::test::removeTempDirsOfPassedRuns();
   const octoray::cli::WorkerThreadsJoinedAtExit joined;
   return RUN_ALL_TESTS();
 }

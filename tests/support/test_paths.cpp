@@ -14,12 +14,12 @@ namespace octoray::test {
 
 namespace {
 
-// The folders freshTempDir made for the running test, and for its suite's set-up
-// (SetUpTestSuite: no test is running yet).
+// The folders freshTempDir made in this process, and how many of them the running test made
+// (from `testFirst` on).
 struct MadeFolders {
   std::mutex mutex;
-  std::vector<std::filesystem::path> test;
-  std::vector<std::filesystem::path> suite;
+  std::vector<std::filesystem::path> all;
+  std::size_t testFirst = 0;
 };
 
 MadeFolders& madeFolders() {
@@ -27,40 +27,44 @@ MadeFolders& madeFolders() {
   return folders;
 }
 
-// Removes `folders` when `passed`; otherwise keeps them and names them, so a failure's
-// output can be read. Either way the list is emptied for the next test or suite.
-void settle(std::vector<std::filesystem::path>& folders, bool passed) {
-  std::vector<std::filesystem::path> taken;
-  {
+// Removes the process's folders at its end when every test passed. A test binary run whole
+// (the ThreadSanitizer stage, a developer) shares a store one test builds with the tests after
+// it (a function-local static), so no folder goes before the last test; under ctest each
+// process runs one test. When a test fails, the folders it made are named at once and every
+// folder is kept, since the failed test may have read another's.
+class RemoveFoldersOfPassedRuns : public ::testing::EmptyTestEventListener {
+  void OnTestStart(const ::testing::TestInfo&) override {
     std::lock_guard lock(madeFolders().mutex);
-    taken.swap(folders);
+    madeFolders().testFirst = madeFolders().all.size();
   }
-  for (const auto& folder : taken) {
-    if (!passed) {
-      std::cerr << "kept for inspection: " << folder.string() << "\n";
-      continue;
-    }
-    std::error_code ignored;  // a folder the test removed itself is not an error
-    std::filesystem::remove_all(folder, ignored);
-  }
-}
-
-// gtest calls OnTestEnd after the test object (and every server or file it held) is gone,
-// and OnTestSuiteEnd after TearDownTestSuite.
-class RemoveFoldersOfPassedTests : public ::testing::EmptyTestEventListener {
   void OnTestEnd(const ::testing::TestInfo& info) override {
-    settle(madeFolders().test, !info.result()->Failed());
+    if (!info.result()->Failed()) return;
+    std::lock_guard lock(madeFolders().mutex);
+    const auto& all = madeFolders().all;
+    for (std::size_t i = madeFolders().testFirst; i < all.size(); ++i) {
+      std::cerr << "kept for inspection: " << all[i].string() << "\n";
+    }
   }
-  void OnTestSuiteEnd(const ::testing::TestSuite& suite) override {
-    settle(madeFolders().suite, !suite.Failed());
+  void OnTestProgramEnd(const ::testing::UnitTest& unit) override {
+    std::lock_guard lock(madeFolders().mutex);
+    auto& all = madeFolders().all;
+    if (!unit.Passed()) {
+      if (!all.empty()) std::cerr << "kept the " << all.size() << " temporary folder(s) of this run under test-tmp/\n";
+      return;
+    }
+    for (const auto& folder : all) {
+      std::error_code ignored;  // a folder a test removed itself is not an error
+      std::filesystem::remove_all(folder, ignored);
+    }
+    all.clear();
   }
 };
 
 }  // namespace
 
-void removeTempDirsOfPassedTests() {
+void removeTempDirsOfPassedRuns() {
   if (const char* keep = std::getenv("OCTORAY_KEEP_TEST_TMP"); keep && *keep) return;
-  ::testing::UnitTest::GetInstance()->listeners().Append(new RemoveFoldersOfPassedTests);
+  ::testing::UnitTest::GetInstance()->listeners().Append(new RemoveFoldersOfPassedRuns);
 }
 
 std::filesystem::path sharedDir() {
@@ -87,7 +91,7 @@ std::filesystem::path freshTempDir(const std::string& name) {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   std::lock_guard lock(madeFolders().mutex);
-  (info ? madeFolders().test : madeFolders().suite).push_back(dir);
+  madeFolders().all.push_back(dir);
   return dir;
 }
 

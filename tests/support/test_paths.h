@@ -15,15 +15,15 @@ std::filesystem::path philipsDir();
 // Debian python3-pydicom's test files folder.
 std::filesystem::path pydicomTestFiles();
 // A fresh, empty temporary folder unique to the running test (or, made in SetUpTestSuite, to
-// the suite and the process), under the build tree's test-tmp/. Removed when the test (the
-// suite) passes, once removeTempDirsOfPassedTests() is installed; kept and named on stderr
-// when it fails.
+// the suite and the process), under the build tree's test-tmp/. Once
+// removeTempDirsOfPassedRuns() is installed, removed at the end of the test program when
+// every test in it passed; kept when one failed, and a failed test's own folders are named
+// on stderr.
 std::filesystem::path freshTempDir(const std::string& name);
-// Installs the listener that removes a passed test's folders: every suite's main() does, so a
-// full run does not leave gigabytes of stores and archives behind (3.2 GB under ASan before
-// 2026-12-06).
-// OCTORAY_KEEP_TEST_TMP=1 keeps them all.
-void removeTempDirsOfPassedTests();
+// Installs the listener that removes a passed run's folders: every suite's main() does, so a
+// full ctest run (one process per test) does not leave gigabytes of stores and archives
+// behind (3.2 GB under ASan before 2026-12-06). OCTORAY_KEEP_TEST_TMP=1 keeps them all.
+void removeTempDirsOfPassedRuns();
 // The built tool `name` (e.g. "octoray-import") in the build tree's bin folder.
 std::filesystem::path toolPath(const std::string& name);
 
