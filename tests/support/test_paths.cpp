@@ -49,7 +49,10 @@ class RemoveFoldersOfPassedRuns : public ::testing::EmptyTestEventListener {
     std::lock_guard lock(madeFolders().mutex);
     auto& all = madeFolders().all;
     if (!unit.Passed()) {
-      if (!all.empty()) std::cerr << "kept the " << all.size() << " temporary folder(s) of this run under test-tmp/\n";
+      if (!all.empty()) {
+        std::cerr << "kept the " << all.size() << " temporary folder(s) of this run under "
+                  << "test-tmp/\n";
+      }
       return;
     }
     for (const auto& folder : all) {
