@@ -13,28 +13,19 @@ from run to run; this machine's speed does (up to 1.7x), hence the repeated runs
 """
 
 import argparse
-import csv
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from plot_accuracy import number  # noqa: E402
+from plot_accuracy import load_run  # noqa: E402
 
 MODES = ["dvr-bone", "dvr-soft", "iso", "mip"]
 
 
 def load(run):
-    rows = []
-    for out in run.split(","):
-        path = Path(out) / "rows.csv"
-        if not path.is_file():
-            sys.exit(f"image_adaptive_table.py: {path}: no such file (an OUT_DIR of bench/accuracy.py?)")
-        for r in csv.DictReader(open(path)):
-            for k in ("medianMs", "psnrDb", "raysCast"):
-                r[k] = number(r.get(k))
-            rows.append(r)
-    return rows
+    """One run: the rows of its OUT_DIRs (joined by commas) together."""
+    return [r for out in run.split(",") for r in load_run(out, "image_adaptive_table.py")]
 
 
 def main():

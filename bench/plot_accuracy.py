@@ -15,6 +15,7 @@ import argparse
 import csv
 import json
 import statistics
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -41,6 +42,19 @@ def load(path):
         return []
     with open(path) as f:
         return list(csv.DictReader(f))
+
+
+def load_run(out, tool, columns=("medianMs", "psnrDb", "ssim", "raysCast")):
+    """The rows of one accuracy.py run (OUT/rows.csv), `columns` as numbers; `tool` names the
+    script in the message when the folder has none."""
+    path = Path(out) / "rows.csv"
+    if not path.is_file():
+        sys.exit(f"{tool}: {path}: no such file (an OUT_DIR of bench/accuracy.py?)")
+    rows = load(path)
+    for r in rows:
+        for k in columns:
+            r[k] = number(r.get(k))
+    return rows
 
 
 def pareto(points):

@@ -20,21 +20,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from plot_accuracy import fastest_as_accurate, number  # noqa: E402
+from plot_accuracy import fastest_as_accurate, load_run  # noqa: E402
 
 POINTS = ["0.25vox", "0.5vox", "1.0vox", "2.0vox", "0.5vox-isd2"]
 NAMES = {"dvr-bone": "CT-Bone", "dvr-soft": "soft tissue"}
-
-
-def load(out):
-    path = Path(out) / "rows.csv"
-    if not path.is_file():
-        sys.exit(f"vtk_cpu_bar.py: {path}: no such file (an OUT_DIR of bench/accuracy.py?)")
-    rows = list(csv.DictReader(open(path)))
-    for r in rows:
-        for k in ("medianMs", "psnrDb", "ssim"):
-            r[k] = number(r.get(k))
-    return rows
 
 
 def main():
@@ -42,7 +31,7 @@ def main():
     p.add_argument("out", nargs="+", help="bench/accuracy.py output folders, one per run")
     p.add_argument("--modes", default="dvr-bone,dvr-soft")
     args = p.parse_args()
-    runs = [load(out) for out in args.out]
+    runs = [load_run(out, "vtk_cpu_bar.py") for out in args.out]
     keys = sorted({(r["scene"], r["mode"], int(r["view"])) for r in runs[0] if r["renderer"] == "vtk-cpu"
                    and r["mode"] in args.modes.split(",")},
                   key=lambda k: (k[0], args.modes.split(",").index(k[1]), k[2]))
