@@ -12,7 +12,10 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <set>
+#include <string>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -234,6 +237,40 @@ TEST(VdbExport, ActiveCountFollowsTheThreshold) {
     EXPECT_EQ(readWithOpenVdb(file)->metaValue<double>(vdb_meta::kThreshold), threshold);
   }
   EXPECT_TRUE(onlyFiles(dir, {"t.vdb"}));
+}
+
+// The export streams the leaves' values through a spill file and writes the rest with
+// OpenVDB's own code; the file must be the one OpenVDB's writer makes of the same grid, byte for
+// byte but for the random UUID in the header: over several internal nodes of 128^3 voxels (their
+// leaves are written in a different order than the slabs produce them), with leaves, inactive
+// blocks and a tile.
+TEST(VdbExport, WritesTheBytesOpenVdbWritesForTheSameGrid) {
+  const auto dir = test::freshTempDir("vdb_bytes");
+  const std::array<int64_t, 3> dims{260, 21, 137};  // 3 x 1 x 2 internal nodes of 128^3
+  FunctionSource source(dims, tiltedAffine(), headValue);
+  const fs::path streamed = dir / "streamed.vdb", rewritten = dir / "rewritten.vdb";
+  exportVdb(source, streamed.string());
+  const openvdb::FloatGrid::Ptr grid = readWithOpenVdb(streamed);
+  ASSERT_TRUE(grid);
+  EXPECT_GT(grid->tree().leafCount(), 100u);
+  EXPECT_GT(grid->tree().activeTileCount(), 0u);
+  writeWithOpenVdb(rewritten, {grid});
+
+  auto bytes = [](const fs::path& file) {
+    std::ifstream in(file, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const std::string a = bytes(streamed), b = bytes(rewritten);
+  ASSERT_EQ(a.size(), b.size());
+  std::vector<std::size_t> differing;
+  for (std::size_t n = 0; n < a.size(); ++n) {
+    if (a[n] != b[n]) differing.push_back(n);
+  }
+  // The header: magic (8 bytes), file and library versions (12), offsets flag (1), then the
+  // 36-character UUID: bytes 21..56.
+  for (std::size_t n : differing) {
+    EXPECT_TRUE(n >= 21 && n < 57) << "byte " << n << " of " << a.size() << " differs";
+  }
 }
 
 TEST(VdbExport, FailureLeavesNoFile) {

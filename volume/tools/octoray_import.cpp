@@ -434,6 +434,7 @@ int exportVolume(const Arguments& a) {
       j["activeVoxels"] = vdb->activeVoxels;
       j["bytesOnDisk"] = vdb->bytesOnDisk;
     }
+    j["peakRssMiB"] = peakRssMiB();
     std::cout << j.dump(2, ' ', false, json::error_handler_t::replace) << "\n";
   } else {
     fmt::print("wrote {} ({} x {} x {})\n", a.exportPath, info.dims[0], info.dims[1], info.dims[2]);

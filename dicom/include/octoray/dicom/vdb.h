@@ -45,8 +45,11 @@ struct VdbExportReport {
 
 // Writes `source` to `path` through a temporary file (.NAME.partial-PID beside it) renamed on
 // success, so a failure or an interruption never leaves a partial file at `path`. Memory is one
-// slab of 8 slices plus the sparse grid. Throws octoray::Error naming `path` when no sample
-// reaches the threshold (the grid would be empty) or when writing fails.
+// slab of 8 slices plus the grid's topology, never its values: about 100 bytes per 8x8x8 leaf
+// and 8 bytes per 8x8x8 block of the volume. The leaves' values pass through a second temporary
+// file beside it (.NAME.spill-PID, about the size of the output), removed at the end. Throws
+// octoray::Error naming `path` when no sample reaches the threshold (the grid would be empty) or
+// when writing fails.
 VdbExportReport exportVdb(VolumeSource& source, const std::string& path,
                           const VdbExportOptions& options = {});
 
