@@ -44,10 +44,11 @@ struct VdbExportReport {
 };
 
 // Writes `source` to `path` through a temporary file (.NAME.partial-PID beside it) renamed on
-// success, so a failure or an interruption never leaves a partial file at `path`. Memory is one
-// slab of 8 slices plus the grid's topology, never its values: about 100 bytes per 8x8x8 leaf
-// and 8 bytes per 8x8x8 block of the volume. The leaves' values pass through a second temporary
-// file beside it (.NAME.spill-PID, about the size of the output), removed at the end. Throws
+// success, so a failure or an interruption never leaves a partial file at `path`. Memory holds
+// neither the grid's values nor its topology: one slab of 8 slices, 9 bytes per 8x8x8 block of
+// the volume and 9 bytes per leaf (vdb_export.cpp says how). The leaves' values and masks pass
+// through a second temporary file beside it (.NAME.spill-PID, about the size of the output),
+// removed at the end. The file is the one OpenVDB's io::File writes for the same grid. Throws
 // octoray::Error naming `path` when no sample reaches the threshold (the grid would be empty) or
 // when writing fails.
 VdbExportReport exportVdb(VolumeSource& source, const std::string& path,
