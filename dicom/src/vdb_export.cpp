@@ -257,7 +257,8 @@ SpilledGrid spillGrid(VolumeSource& source, const VdbExportOptions& options, uin
 // The grid's nodes in the order OpenVDB writes them, depth first: the 4096^3 nodes in the root's
 // table order (its coordinates' lexicographic order), each node's children in its child-mask
 // order (x slowest, z fastest). visitUpper(origin, usedLowers) is called before the upper node's
-// lowers, visitLower(origin, lx, ly, lz) before its blocks, visitBlock(n) for each non-empty block.
+// lowers, visitLower(lx, ly, lz) (the 128^3 node's index) before its blocks, and
+// visitBlock(n, bx, by, bz) for each block that has a leaf or a tile.
 template <typename Upper, typename Lower, typename Visit>
 void forEachNodeInFileOrder(const SpilledGrid& g, Upper&& visitUpper, Lower&& visitLower,
                             Visit&& visitBlock) {
