@@ -67,6 +67,9 @@ struct Raycaster::Impl {
   GlFramebuffer depthFbo;          // targets[3] alone: the image-adaptive frame's depth pass
   std::vector<GlTexture> targets;  // colour, aux, stats, depth + stencil
   int targetWidth = 0, targetHeight = 0;
+  // The targets read back, kept from frame to frame: fresh vectors of a 512² frame's 8 MiB
+  // cost their page faults every frame.
+  std::vector<float> readColor, readAux, readCounters;
   std::map<std::string, GlProgram> programs;
 
   // The ray parameters in the single precision the shader receives them in.
@@ -704,11 +707,14 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
 
   // Read back (GL rows run bottom-up; Image row 0 is the top).
   const std::size_t pixels = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
-  std::vector<float> color(pixels * 4), aux(pixels * 4);
+  std::vector<float>& color = im.readColor;
+  std::vector<float>& aux = im.readAux;
+  std::vector<float>& counters = im.readCounters;
+  color.resize(pixels * 4);
+  aux.resize(pixels * 4);
   glPixelStorei(GL_PACK_ALIGNMENT, 4);
   glGetTextureImage(im.targets[0].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(color.size() * 4), color.data());
   glGetTextureImage(im.targets[1].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(aux.size() * 4), aux.data());
-  std::vector<float> counters;
   if (options.stats) {
     counters.resize(pixels * 4);
     glGetTextureImage(im.targets[2].id(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(counters.size() * 4),
