@@ -2,11 +2,12 @@
 """Our cheap image-adaptive settings against VTK CPU at image sample distance 2, interleaved.
 
 Usage: bench/vtk_cpu_interleaved.py BUILD_DIR OUT_DIR [--reps 3] [--modes dvr-bone,dvr-soft]
-           [--views 0,1] [--frames 5]
+           [--views 0,1] [--frames 5] [--scene head] [--size 512]
 
-OUT_DIR is a folder of bench/accuracy.py for the head (run first, e.g. `bench/accuracy.py
+OUT_DIR is a folder of bench/accuracy.py with the scene in it (run first, e.g. `bench/accuracy.py
 BUILD_DIR OUT_DIR --scenes head --modes dvr-bone,dvr-soft --views 0,1 --knobs default
---no-scaling --vtk-mappers cpu`): its store and converged truths are used as they are. For each
+--no-scaling --vtk-mappers cpu`, at the same --size): its store and converged truths are used
+as they are (`--scene phantom64 --size 64` runs it in seconds on accuracy.py --quick's folder). For each
 repetition, mode and view, this renders every setting of SETTINGS with octoray-render and then
 VTK CPU at 0.5 voxel and image sample distance 2 (vtk-peer), one right after the other, so that
 each ratio ours/VTK compares runs a few seconds apart on this machine, whose speed varies by up
@@ -49,24 +50,27 @@ def main():
     p.add_argument("--modes", default="dvr-bone,dvr-soft")
     p.add_argument("--views", default="0,1")
     p.add_argument("--frames", type=int, default=5)
+    p.add_argument("--scene", default="head", help="an accuracy.py scene whose store and truths OUT_DIR holds")
+    p.add_argument("--size", type=int, default=512, help="the image size of OUT_DIR's truths")
     args = p.parse_args()
     for mode in args.modes.split(","):
         if mode not in MODES or not mode.startswith("dvr"):
             sys.exit(f"vtk_cpu_interleaved.py: --modes: {mode} is not a DVR mode of bench/accuracy.py")
     # accuracy.py's set-up (paths, presets, xvfb-run for vtk-peer) with its own arguments' defaults.
-    bench = Bench(argparse.Namespace(build=args.build, out=args.out, size=512, frames=args.frames, quick=False,
-                                     big=None, big_zoom=6))
-    store = bench.out / "scenes" / "head-uint16.octoray"
+    bench = Bench(argparse.Namespace(build=args.build, out=args.out, size=args.size, frames=args.frames,
+                                     quick=False, big=None, big_zoom=6))
+    store = bench.out / "scenes" / f"{args.scene}-uint16.octoray"
     if not store.exists():
-        sys.exit(f"vtk_cpu_interleaved.py: {store} is missing: run bench/accuracy.py --scenes head into {args.out} first")
+        sys.exit(f"vtk_cpu_interleaved.py: {store} is missing: run bench/accuracy.py --scenes {args.scene} "
+                 f"into {args.out} first")
     spacing = bench.smallest_spacing(store)
     views = [int(v) for v in args.views.split(",")]
     truths = {}
     for mode in args.modes.split(","):
         for view in views:
-            truth = bench.out / f"truth-head-{mode}-v{view}.exr"
+            truth = bench.out / f"truth-{args.scene}-{mode}-v{view}.exr"
             if not truth.exists():
-                sys.exit(f"vtk_cpu_interleaved.py: {truth} is missing: run bench/accuracy.py --scenes head "
+                sys.exit(f"vtk_cpu_interleaved.py: {truth} is missing: run bench/accuracy.py --scenes {args.scene} "
                          f"--modes {mode} --views {view} into {args.out} first")
             truths[(mode, view)] = truth
 
