@@ -165,14 +165,25 @@ class Bench:
                 "depthMeanVoxels": d.get("meanAbsMm", 0) / spacing, "depthMaxVoxels": d.get("maxAbsMm", 0) / spacing,
                 "depthMissPixels": d.get("pixelsOne", 0)}
 
+    # ---- the timed commands (also bench/vtk_cpu_interleaved.py's) ----
+    def ours_cmd(self, store, scene, mode, view, extra, png, exr):
+        """octoray-render of one setting: --frames timed frames, --json, the picture to png and exr."""
+        return [self.bin / "octoray-render", store, "-o", png, "--exr", exr, "--size", self.size,
+                *self.view_args(scene, view), "--frames", self.args.frames, "--orbit", "0", "--json",
+                *self.tf_args(mode), *extra]
+
+    def vtk_cmd(self, store, mapper, mode, view, extra, png, exr):
+        """vtk-peer with VTK's 'gpu' or 'cpu' mapper, as ours_cmd (under xvfb-run without a display)."""
+        az, el = VIEWS[view]
+        return [*self.vtk_prefix, self.bin / "vtk-peer", store, "--mapper", mapper, "-o", png, "--exr", exr,
+                "--size", self.size, "--azimuth", az, "--elevation", el, "--frames", self.args.frames, "--json",
+                *self.tf_args(mode), *extra]
+
     # ---- ours ----
     def ours(self, scene, store, mode, view, knob, setting, extra, truth, spacing):
         name = f"gpu-{scene}-{mode}-v{view}-{knob}-{setting}".replace("/", "_")
         exr = self.out / f"{name}.exr"
-        cmd = [self.bin / "octoray-render", store, "-o", self.out / f"{name}.png", "--exr", exr,
-               "--size", self.size, *self.view_args(scene, view), "--frames", self.args.frames,
-               "--orbit", "0", "--json", *self.tf_args(mode), *extra]
-        r = self.run(cmd, check=False)
+        r = self.run(self.ours_cmd(store, scene, mode, view, extra, self.out / f"{name}.png", exr), check=False)
         row = {"scene": scene, "mode": mode, "view": view, "renderer": "octoray", "knob": knob,
                "setting": setting}
         if r.returncode != 0:
@@ -245,7 +256,6 @@ class Bench:
         # VTK CPU has no isosurface mode
         mappers = [m for m in (["gpu"] if mode == "iso" else ["gpu", "cpu"])
                    if m in self.args.vtk_mappers.split(",")]
-        az, el = VIEWS[view]
         for mapper in mappers:
             settings = [(f"{f}vox", ["--step", f * spacing]) for f in (0.25, 0.5, 1.0, 2.0)]
             if mapper == "cpu":
@@ -253,10 +263,8 @@ class Bench:
             for setting, extra in settings:
                 name = f"vtk{mapper}-{scene}-{mode}-v{view}-{setting}"
                 exr = self.out / f"{name}.exr"
-                cmd = [*self.vtk_prefix, self.bin / "vtk-peer", store, "--mapper", mapper, "-o",
-                       self.out / f"{name}.png", "--exr", exr, "--size", self.size, "--azimuth", az,
-                       "--elevation", el, "--frames", self.args.frames, "--json", *self.tf_args(mode), *extra]
-                r = self.run(cmd, check=False)
+                r = self.run(self.vtk_cmd(store, mapper, mode, view, extra, self.out / f"{name}.png", exr),
+                             check=False)
                 row = {"scene": scene, "mode": mode, "view": view, "renderer": f"vtk-{mapper}", "knob": "step",
                        "setting": setting}
                 if r.returncode != 0:

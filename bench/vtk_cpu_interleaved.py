@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from accuracy import MODES, VIEWS, Bench  # noqa: E402
+from accuracy import MODES, Bench  # noqa: E402
 
 # name: arguments, in voxels of the scene's smallest spacing (s); "L1": one level above the
 # image (--image-adaptive-levels 1), else the default two.
@@ -79,19 +79,15 @@ def main():
     rows = []
     for rep in range(args.reps):
         for (mode, view), truth in truths.items():
-            az, el = VIEWS[view]
             for name in [*SETTINGS, VTK]:
                 if name == VTK:
-                    cmd = [*bench.vtk_prefix, bench.bin / "vtk-peer", store, "--mapper", "cpu", "-o", png, "--exr", exr,
-                           "--size", bench.size, "--azimuth", az, "--elevation", el, "--frames", args.frames,
-                           "--json", *bench.tf_args(mode), "--step", 0.5 * spacing, "--image-sample-distance", 2]
+                    cmd = bench.vtk_cmd(store, "cpu", mode, view,
+                                        ["--step", 0.5 * spacing, "--image-sample-distance", 2], png, exr)
                 else:
-                    cmd = [bench.bin / "octoray-render", store, "-o", png, "--exr", exr, "--size", bench.size,
-                           "--azimuth", az, "--elevation", el, "--frames", args.frames, "--orbit", 0, "--json",
-                           *bench.tf_args(mode), *SETTINGS[name](spacing)]
+                    cmd = bench.ours_cmd(store, args.scene, mode, view, SETTINGS[name](spacing), png, exr)
                 out = bench.run(cmd).stdout
                 report = json.loads(out[out.find("{"):])
-                m = json.loads(bench.run([bench.bin / "octoray-compare", truth, exr, "--json"]).stdout)
+                m = bench.compare(truth, exr, spacing)
                 row = {"rep": rep, "mode": mode, "view": view, "setting": name, "medianMs": report["medianMs"],
                        "raysCast": report["frames"][0].get("raysCast") if "frames" in report else None,
                        "psnrDb": m["psnrDb"], "ssim": m["ssim"]}
