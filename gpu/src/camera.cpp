@@ -19,12 +19,12 @@ constexpr double kDegrees = std::numbers::pi / 180.0;
 bool finite(Vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
 
 // Orthonormal view frame: forward, right (image +x) and up (image -y).
-struct Frame {
+struct ViewFrame {
   Vec3 forward, right, up;
 };
 
-Frame viewFrame(const Camera& c) {
-  Frame f;
+ViewFrame viewFrame(const Camera& c) {
+  ViewFrame f;
   f.forward = normalize(c.target - c.eye);
   f.right = normalize(cross(f.forward, c.up));
   f.up = cross(f.right, f.forward);
@@ -61,14 +61,16 @@ T numberFromJson(const nlohmann::json& j, const char* field, const std::string& 
 
 }  // namespace
 
+double Camera::tanHalfFovY() const { return std::tan(0.5 * fovYDegrees * kDegrees); }
+
 Ray Camera::ray(double x, double y) const {
-  const Frame f = viewFrame(*this);
+  const ViewFrame f = viewFrame(*this);
   // Image-plane coordinates in [-1, 1] vertically, scaled by the aspect ratio horizontally.
   const double aspect = static_cast<double>(width) / height;
   const double sx = (2.0 * (x + 0.5) / width - 1.0) * aspect;
   const double sy = 1.0 - 2.0 * (y + 0.5) / height;
   if (projection == Projection::Perspective) {
-    const double halfHeight = std::tan(0.5 * fovYDegrees * kDegrees);
+    const double halfHeight = tanHalfFovY();
     return {eye, normalize(f.forward + (sx * halfHeight) * f.right + (sy * halfHeight) * f.up)};
   }
   const double halfHeightMm = 0.5 * orthoHeightMm;

@@ -118,7 +118,7 @@ void expandIncludes(std::string_view source, std::string_view name, std::size_t 
     } catch (const Error& error) {
       throw Error(where, fmt::format("included part: {}", error.what()));
     }
-    if (std::count(partText.begin(), partText.end(), '\n') >= kPartLines) {
+    if (static_cast<std::size_t>(std::count(partText.begin(), partText.end(), '\n')) >= kPartLines) {
       throw Error(part, fmt::format("an included part must be shorter than {} lines", kPartLines));
     }
     state.parts.push_back(part);

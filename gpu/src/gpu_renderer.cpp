@@ -6,14 +6,11 @@
 #include <chrono>
 #include <optional>
 
+#include "octoray/core/elapsed.h"
 #include "octoray/core/error.h"
 
 namespace octoray::gpu {
 namespace {
-
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
 
 WorkingSetConfig workingSetConfig(const RendererConfig& c) {
   WorkingSetConfig w;

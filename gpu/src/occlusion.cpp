@@ -13,7 +13,6 @@
 namespace octoray::gpu {
 namespace {
 
-constexpr double kDegrees = 3.14159265358979323846 / 180.0;
 // The box faces as corner indices (corner bits: x 1, y 2, z 4), in order around each face.
 constexpr int kFaces[6][4] = {{0, 2, 6, 4}, {1, 3, 7, 5}, {0, 1, 5, 4},
                               {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 5, 7, 6}};
@@ -41,7 +40,7 @@ const std::vector<ScreenTile>& OcclusionQueries::plan(const Camera& camera, cons
   const Vec3 up = cross(right, forward);
   const double aspect = static_cast<double>(camera.width) / camera.height;
   const bool perspective = camera.projection == Projection::Perspective;
-  const double halfY = perspective ? std::tan(0.5 * camera.fovYDegrees * kDegrees) : 0.5 * camera.orthoHeightMm;
+  const double halfY = perspective ? camera.tanHalfFovY() : 0.5 * camera.orthoHeightMm;
   const double halfX = halfY * aspect;
   const double n = depth.nearMm, f = depth.farMm;
   // Row-major clip-from-camera: the raycaster's ray directions and gl_FragDepth mapping.

@@ -10,6 +10,7 @@
 #include <numeric>
 #include <optional>
 
+#include "octoray/core/elapsed.h"
 #include "octoray/core/error.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gl_program.h"
@@ -22,10 +23,6 @@ namespace {
 constexpr int kTfTableSize = 8192;
 // Bins of the pre-integration table over the TF's opacity support within the data's range.
 constexpr int kPreintegrationBins = 256;
-constexpr double kDegrees = 3.14159265358979323846 / 180.0;
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
 
 // True when the TF's gradient opacity changes nothing (no points, or every point 1).
 bool gradientOpacityIsIdentity(const transfer::TransferFunction& tf) {
@@ -125,7 +122,7 @@ Raycaster::Impl::RayUniforms Raycaster::Impl::rayUniforms(const Camera& camera) 
   const Vec3 up = cross(right, forward);
   const double aspect = static_cast<double>(camera.width) / camera.height;
   u.perspective = camera.projection == Projection::Perspective;
-  const double halfY = u.perspective ? std::tan(0.5 * camera.fovYDegrees * kDegrees)
+  const double halfY = u.perspective ? camera.tanHalfFovY()
                                      : 0.5 * camera.orthoHeightMm;
   u.eye = f3(camera.eye);
   u.forward = f3(forward);
@@ -578,7 +575,7 @@ Frame Raycaster::draw(const Camera& camera, const transfer::TransferFunction& tf
     double voxelMm = 0;
     for (int a = 0; a < 3; ++a) voxelMm = std::max(voxelMm, length(patientFromIndex.column(a)));
     const double pixelScale = camera.projection == Projection::Perspective
-                                  ? 2.0 * std::tan(0.5 * camera.fovYDegrees * kDegrees) / camera.height
+                                  ? 2.0 * camera.tanHalfFovY() / camera.height
                                   : camera.orthoHeightMm / camera.height;
     glUniform1f(prog.uniform("uLeafVoxelMm"), static_cast<float>(voxelMm));
     glUniform1f(prog.uniform("uPixelScale"), static_cast<float>(pixelScale));

@@ -10,13 +10,12 @@
 #include <queue>
 #include <stdexcept>
 
+#include "octoray/core/elapsed.h"
 #include "octoray/core/error.h"
 #include "octoray/transfer/opacity_table.h"
 
 namespace octoray::gpu {
 namespace {
-
-constexpr double kDegrees = 3.14159265358979323846 / 180.0;
 
 // What the emptiness test needs of the TF and the store's value mapping.
 class EmptinessTest {
@@ -82,7 +81,7 @@ class Projector {
     for (int a = 0; a < 3; ++a) voxelMm_ = std::max(voxelMm_, length(m_.column(a)));
     const double aspect = static_cast<double>(camera.width) / camera.height;
     if (camera.projection == Projection::Perspective) {
-      tanY_ = std::tan(0.5 * camera.fovYDegrees * kDegrees);
+      tanY_ = camera.tanHalfFovY();
       tanX_ = tanY_ * aspect;
     } else {
       halfY_ = 0.5 * camera.orthoHeightMm;
@@ -226,14 +225,6 @@ struct WorkingSet::FrameContext {
                const transfer::TransferFunction& tf, const WorkingSetOptions& o)
       : camera(c), options(o), emptiness(store, tf, o), projector(store, camera) {}
 };
-
-namespace {
-
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-}
-
-}  // namespace
 
 WorkingSet::WorkingSet(const volume::StoreReader& store, BrickPool& pool, volume::BrickCache& cache,
                        volume::BrickLoader& loader, WorkingSetConfig config)

@@ -59,11 +59,6 @@
 
 namespace octoray::render_tool {
 
-double millisecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-      .count();
-}
-
 // "512x384": two positive integers.
 std::array<int, 2> parseSize(const std::string& text) {
   int w = 0, h = 0;

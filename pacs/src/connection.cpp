@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/pacs/dicomweb.h"
 #include "octoray/pacs/dimse.h"
 
@@ -73,21 +74,15 @@ class DimseConnection final : public PacsConnection {
   DimseEndpoint endpoint_;
 };
 
-std::string lowerPrefix(const std::string& text, std::size_t n) {
-  std::string s = text.substr(0, n);
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
 }  // namespace
 
 bool isPacsUrl(const std::string& text) {
-  return isHttpUrl(text) || lowerPrefix(text, 8) == "dicom://";
+  return isHttpUrl(text) || asciiLower(text.substr(0, 8)) == "dicom://";
 }
 
 std::unique_ptr<PacsConnection> connectPacs(const std::string& url, const PacsOptions& options) {
   if (isHttpUrl(url)) return std::make_unique<DicomWebConnection>(url, options);
-  if (lowerPrefix(url, 8) == "dicom://") {
+  if (asciiLower(url.substr(0, 8)) == "dicom://") {
     if (options.credentials.kind != Credentials::Kind::None) {
       throw Error(url, "credentials apply to DICOMweb (http/https), not to DIMSE");
     }

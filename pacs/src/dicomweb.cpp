@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/pacs/multipart.h"
 
 namespace octoray::pacs {
@@ -30,11 +31,6 @@ void initialiseCurlOnce() {
       throw Error("libcurl", "cannot initialise");
     }
   });
-}
-
-std::string lower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
 }
 
 // The first value of a DICOM JSON attribute (PS3.18 F.2) as text: strings as they are,
@@ -109,7 +105,7 @@ const std::string& checkedUid(const std::string& uid, const char* what) {
 }  // namespace
 
 bool isHttpUrl(const std::string& text) {
-  const std::string low = lower(text.substr(0, 8));
+  const std::string low = asciiLower(text.substr(0, 8));
   return low.starts_with("http://") || low.starts_with("https://");
 }
 

@@ -38,6 +38,7 @@
 #include <unordered_set>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 
 namespace octoray::pacs {
 namespace {
@@ -48,11 +49,6 @@ constexpr std::size_t kUidsPerGet = 64;
 
 // ---------------------------------------------------------------------------------------------
 // Names, checks and DCMTK's log
-
-std::string lower(std::string text) {
-  for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return text;
-}
 
 // PS3.5 AE: 1 to 16 characters of the default repertoire, no backslash, not only spaces.
 bool validAeTitle(const std::string& aet) {
@@ -592,7 +588,7 @@ std::string dimseUrl(const DimseEndpoint& endpoint) {
 DimseEndpoint parseDimseUrl(const std::string& url) {
   static const std::string scheme = "dicom://";
   const std::string expected = "expected dicom://CALLED_AET@HOST[:PORT]";
-  if (lower(url.substr(0, scheme.size())) != scheme) {
+  if (asciiLower(url.substr(0, scheme.size())) != scheme) {
     throw Error(url, "not a DIMSE address: " + expected);
   }
   std::string rest = url.substr(scheme.size());

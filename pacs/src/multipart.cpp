@@ -6,16 +6,11 @@
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 
 namespace octoray::pacs {
 
 namespace {
-
-std::string lower(std::string_view s) {
-  std::string out(s);
-  for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return out;
-}
 
 [[noreturn]] void malformed(const std::string& origin, const std::string& what) {
   throw Error(origin, "malformed multipart body: " + what);
@@ -29,7 +24,7 @@ std::string headerValue(std::string_view block, std::string_view name) {
     if (end == std::string_view::npos) end = block.size();
     const std::string_view line = block.substr(pos, end - pos);
     const auto colon = line.find(':');
-    if (colon != std::string_view::npos && lower(line.substr(0, colon)) == lower(name)) {
+    if (colon != std::string_view::npos && asciiLower(line.substr(0, colon)) == asciiLower(name)) {
       std::string_view value = line.substr(colon + 1);
       while (!value.empty() && (value.front() == ' ' || value.front() == '\t')) value.remove_prefix(1);
       while (!value.empty() && (value.back() == ' ' || value.back() == '\t')) value.remove_suffix(1);
@@ -43,7 +38,7 @@ std::string headerValue(std::string_view block, std::string_view name) {
 }  // namespace
 
 std::string multipartBoundary(const std::string& contentType, const std::string& origin) {
-  const std::string low = lower(contentType);
+  const std::string low = asciiLower(contentType);
   if (!low.starts_with("multipart/")) {
     throw Error(origin, fmt::format("expected a multipart answer, got Content-Type \"{}\"",
                                     contentType.empty() ? "(none)" : contentType));

@@ -96,18 +96,6 @@ SliceAttributes readAttributes(const fs::path& path) {
   return a;
 }
 
-// The image files of one series folder (everything but Philips' DIRFILE), sorted by name.
-std::vector<fs::path> imageFiles(const fs::path& folder) {
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_regular_file() && entry.path().filename() != "DIRFILE") {
-      files.push_back(entry.path());
-    }
-  }
-  std::sort(files.begin(), files.end());
-  return files;
-}
-
 TEST_F(PhilipsData, ScanFindsTheAxialSeriesOfBothSessions) {
   for (const AxialCase& c : kAxialCases) {
     SCOPED_TRACE(c.folder);

@@ -19,6 +19,7 @@
 #include "octoray/dicom/dicom_decode.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
+#include "philips_data.h"
 #include "test_paths.h"
 
 namespace octoray {
@@ -44,17 +45,6 @@ constexpr Syntax kLosslessSyntaxes[] = {
 };
 
 fs::path fineSeries() { return test::philipsDir() / "S21570/S2020"; }
-
-std::vector<fs::path> imageFiles(const fs::path& folder) {
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_regular_file() && entry.path().filename() != "DIRFILE") {
-      files.push_back(entry.path());
-    }
-  }
-  std::sort(files.begin(), files.end());
-  return files;
-}
 
 bool haveGdcmconv() { return std::system("gdcmconv --version > /dev/null 2>&1") == 0; }
 
@@ -84,7 +74,7 @@ void reencode(const std::vector<fs::path>& files, const fs::path& dir, const cha
 TEST(TransferSyntax, FiveSlicesInEveryLosslessSyntaxDecodeToTheOriginalValues) {
   OCTORAY_REQUIRE_PATH(fineSeries());
   if (!haveGdcmconv()) GTEST_SKIP() << "skipped: gdcmconv (package libgdcm-tools) is absent";
-  const auto all = imageFiles(fineSeries());
+  const auto all = philips_test::imageFiles(fineSeries());
   ASSERT_EQ(all.size(), 140u);
   std::vector<fs::path> picked;
   for (std::size_t n = 0; n < 5; ++n) picked.push_back(all[n * (all.size() - 1) / 4]);
@@ -125,7 +115,7 @@ TEST(TransferSyntax, WholeSeriesInJpegLsOpensToTheSameVolume) {
   if (!haveGdcmconv()) GTEST_SKIP() << "skipped: gdcmconv (package libgdcm-tools) is absent";
   const auto start = std::chrono::steady_clock::now();
   const fs::path dir = test::freshTempDir("jpegls");
-  reencode(imageFiles(fineSeries()), dir, "--jpegls");
+  reencode(philips_test::imageFiles(fineSeries()), dir, "--jpegls");
 
   const dicom::DicomScan originalScan = dicom::scanDicom(fineSeries());
   const dicom::DicomScan copyScan = dicom::scanDicom(dir);

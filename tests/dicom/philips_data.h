@@ -44,6 +44,18 @@ inline constexpr AxialCase kAxialCases[] = {
     {"S21610/S3010", 58, true},
 };
 
+// The image files of one series folder (everything but Philips' DIRFILE), sorted by name.
+inline std::vector<fs::path> imageFiles(const fs::path& folder) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_regular_file() && entry.path().filename() != "DIRFILE") {
+      files.push_back(entry.path());
+    }
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
 inline bool isUnder(const fs::path& file, const fs::path& folder) {
   const auto f = fs::weakly_canonical(file).string();
   const auto d = fs::weakly_canonical(folder).string() + "/";

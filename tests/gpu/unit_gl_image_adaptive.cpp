@@ -24,7 +24,7 @@
 namespace octoray::gpu {
 namespace {
 
-const std::filesystem::path& phantomStore() {
+const std::filesystem::path& adaptivePhantomStore() {
   static const std::filesystem::path path = [] {
     volume::PhantomOptions options;
     options.dims = {96, 96, 80};
@@ -46,7 +46,7 @@ class ImageAdaptiveTest : public GlTest {};
 
 TEST_F(ImageAdaptiveTest, AVanishingBoundIsExactWithFewerRays) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(adaptivePhantomStore().string());
   GpuRenderer renderer(store);
   const Camera camera = view(store, 128);
   const transfer::TransferFunction tf = transfer::findPreset("bone");
@@ -76,7 +76,7 @@ TEST_F(ImageAdaptiveTest, AVanishingBoundIsExactWithFewerRays) {
 // picture.
 TEST_F(ImageAdaptiveTest, OcclusionQueriesSeeTheSameDepthAsWithEveryRayCast) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(adaptivePhantomStore().string());
   RendererConfig config;
   config.visibility = Visibility::Occlusion;
   config.visibilityThreshold = 1;
@@ -106,7 +106,7 @@ TEST_F(ImageAdaptiveTest, OcclusionQueriesSeeTheSameDepthAsWithEveryRayCast) {
 
 TEST_F(ImageAdaptiveTest, DefaultBoundHalvesTheRaysWithinADecibelOfTheTruth) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(adaptivePhantomStore().string());
   GpuRenderer renderer(store);
   const Camera camera = view(store, 128);
   const transfer::TransferFunction tf = transfer::findPreset("bone");
@@ -145,7 +145,7 @@ TEST_F(ImageAdaptiveTest, DefaultBoundHalvesTheRaysWithinADecibelOfTheTruth) {
 
 TEST_F(ImageAdaptiveTest, BadBoundsAreRejected) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(adaptivePhantomStore().string());
   GpuRenderer renderer(store);
   const Camera camera = view(store, 32);
   const transfer::TransferFunction tf = transfer::findPreset("bone");

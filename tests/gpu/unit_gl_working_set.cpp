@@ -44,7 +44,7 @@ namespace octoray::gpu {
 namespace {
 
 // 128 x 120 x 96 voxels in 16^3 bricks: 4 levels, 441 nodes.
-const std::filesystem::path& phantomStore() {
+const std::filesystem::path& workingSetPhantomStore() {
   static const std::filesystem::path path = [] {
     volume::PhantomOptions options;
     options.dims = {128, 120, 96};
@@ -268,7 +268,7 @@ TEST_F(WorkingSetTest, OcclusionQueriesCountThePixelsInFrontOfTheRaysLastSamples
 
 TEST_F(WorkingSetTest, CutIsAlwaysAValidCoverWithoutHolesOnRandomPaths) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const std::vector<transfer::TransferFunction> tfs = {
       transfer::findPreset("bone"), transfer::findPreset("soft-tissue"), transfer::findPreset("skin")};
   for (const Visibility visibility : {Visibility::None, Visibility::Rays, Visibility::Occlusion}) {
@@ -322,7 +322,7 @@ TEST_F(WorkingSetTest, CutIsAlwaysAValidCoverWithoutHolesOnRandomPaths) {
 
 TEST_F(WorkingSetTest, PictureConvergesToTheStaticOneWhenTheCameraStops) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction tf = transfer::findPreset("bone");
   RaycastOptions options;
   options.lodPixels = 0.5;
@@ -357,7 +357,7 @@ TEST_F(WorkingSetTest, PictureConvergesToTheStaticOneWhenTheCameraStops) {
 
 TEST_F(WorkingSetTest, VisibilityFeedbackShrinksTheSetButNotThePicture) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   // Opaque bone: the rays stop in the near wall of the skull.
   transfer::TransferFunction tf = transfer::findPreset("bone");
   tf.opacity = {{150, 0.0f}, {300, 1.0f}};
@@ -399,7 +399,7 @@ TEST_F(WorkingSetTest, VisibilityFeedbackShrinksTheSetButNotThePicture) {
 // cut's bricks read), closer than it matches the full-resolution reference.
 TEST_F(WorkingSetTest, ConvergedPictureMatchesTheCpuReferenceOverItsCut) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction tf = transfer::findPreset("bone");
   RaycastOptions options;
   options.lodPixels = 2;  // coarse: leaves of several levels
@@ -442,7 +442,7 @@ TEST_F(WorkingSetTest, ConvergedPictureMatchesTheCpuReferenceOverItsCut) {
 // in other slots round their texture coordinates differently: test above).
 TEST_F(WorkingSetTest, RepackedConvergedViewIsTheSamePictureWhateverTheHistory) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction tf = transfer::findPreset("bone");
   RaycastOptions options;
   options.lodPixels = 0.5;
@@ -526,7 +526,7 @@ TEST_F(WorkingSetTest, RealHeadsMeetTheRelativeBar) {
 
 TEST_F(WorkingSetTest, NewTransferFunctionReevaluatesEmptinessWithoutReloading) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction bone = transfer::findPreset("bone");
   const transfer::TransferFunction soft = transfer::findPreset("soft-tissue");
   RaycastOptions options;
@@ -547,7 +547,7 @@ TEST_F(WorkingSetTest, BrickCorruptedMidSessionGivesOneErrorAndItsAncestor) {
   OCTORAY_REQUIRE_CONTEXT(context_);
   const std::filesystem::path dir = test::freshTempDir("gl_working_set_corrupt");
   const std::filesystem::path copy = dir / "phantom.octoray";
-  std::filesystem::copy_file(phantomStore(), copy);
+  std::filesystem::copy_file(workingSetPhantomStore(), copy);
   const volume::StoreReader store(copy.string());
   const transfer::TransferFunction tf = transfer::findPreset("bone");
   const Camera camera = orbit(store, 60, 20, 1.5, 64);
@@ -591,7 +591,7 @@ TEST_F(WorkingSetTest, BrickCorruptedMidSessionGivesOneErrorAndItsAncestor) {
 
 TEST_F(WorkingSetTest, ShutsDownCleanlyWhileBricksAreLoading) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction tf = transfer::findPreset("soft-tissue");
   RaycastOptions options;
   options.lodPixels = 0;
@@ -613,7 +613,7 @@ TEST_F(WorkingSetTest, PoolUsesItsWholeBudgetNotWholeLayers) {
   EXPECT_LE(grid[0] * grid[1] * grid[2], 5773);
   EXPECT_GE(grid[0] * grid[1] * grid[2], 5773 * 95 / 100);
   for (int64_t a : grid) EXPECT_LE(a, 56);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const std::size_t slotBytes = 20 * 20 * 20 * 2;
   for (const std::size_t budget : {std::size_t{1} << 20, std::size_t{3} << 20, 5 * slotBytes + 7}) {
     BrickPool pool(store, budget, false);
@@ -636,7 +636,7 @@ namespace {
 // empty where they run through the removed one.
 TEST_F(WorkingSetTest, ClipBoxCutsTheRaysToTheBox) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction bone = transfer::findPreset("bone");
   OrbitParameters o;
   o.projection = Projection::Orthographic;
@@ -694,7 +694,7 @@ namespace {
 // because it was unseen in the coarse frames).
 TEST_F(WorkingSetTest, ConvergesToTheSameCutAfterInteractiveFrames) {
   OCTORAY_REQUIRE_CONTEXT(context_);
-  const volume::StoreReader store(phantomStore().string());
+  const volume::StoreReader store(workingSetPhantomStore().string());
   const transfer::TransferFunction bone = transfer::findPreset("bone");
   RendererConfig config;
   config.visibility = Visibility::Rays;

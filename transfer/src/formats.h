@@ -11,6 +11,9 @@
 
 namespace octoray::transfer::detail {
 
+// Throws octoray::Error(path, "FIELD: WHAT"): how every parser here reports malformed input.
+[[noreturn]] void fail(const std::string& path, const std::string& field, const std::string& what);
+
 // octoray JSON (docs/transfer-function-json.md).
 std::vector<TransferFunction> parseOctorayJson(const nlohmann::json& root, const std::string& path);
 std::string toOctorayJsonText(const std::vector<TransferFunction>& tfs);

@@ -12,6 +12,11 @@
 #include "octoray/core/error.h"
 
 namespace octoray::transfer::detail {
+
+void fail(const std::string& path, const std::string& field, const std::string& what) {
+  throw Error(path, fmt::format("{}: {}", field, what));
+}
+
 namespace {
 
 using nlohmann::json;
@@ -19,10 +24,6 @@ using nlohmann::ordered_json;
 
 constexpr const char* kFormatName = "octoray-transfer-function";
 constexpr int kFormatVersion = 1;
-
-[[noreturn]] void fail(const std::string& path, const std::string& field, const std::string& what) {
-  throw Error(path, fmt::format("{}: {}", field, what));
-}
 
 double number(const json& value, const std::string& path, const std::string& field) {
   if (!value.is_number()) fail(path, field, "expected a number");

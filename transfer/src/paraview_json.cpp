@@ -15,10 +15,6 @@ namespace {
 
 using nlohmann::json;
 
-[[noreturn]] void fail(const std::string& path, const std::string& field, const std::string& what) {
-  throw Error(path, fmt::format("{}: {}", field, what));
-}
-
 std::vector<double> numbers(const json& array, std::size_t tuple, const std::string& path,
                             const std::string& field) {
   if (!array.is_array() || array.empty() || array.size() % tuple != 0) {

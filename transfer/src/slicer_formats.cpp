@@ -22,10 +22,6 @@ namespace {
 
 using nlohmann::json;
 
-[[noreturn]] void fail(const std::string& path, const std::string& field, const std::string& what) {
-  throw Error(path, fmt::format("{}: {}", field, what));
-}
-
 std::vector<std::string> tokens(const std::string& text) {
   std::vector<std::string> words;
   std::istringstream stream(text);

@@ -155,7 +155,7 @@ void Controller::move(const InputEvent& e) {
       const double mmPerPixel =
           c.projection == gpu::Projection::Orthographic
               ? c.orthoHeightMm / std::max(1, r.h)
-              : 2.0 * distance * std::tan(0.5 * c.fovYDegrees * kDegrees) / std::max(1, r.h);
+              : 2.0 * distance * c.tanHalfFovY() / std::max(1, r.h);
       const Vec3 shift = (-dx * mmPerPixel) * right + (dy * mmPerPixel) * up;
       c.eye = c.eye + shift;
       c.target = c.target + shift;

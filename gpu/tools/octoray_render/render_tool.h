@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "octoray/core/elapsed.h"
 #include "octoray/gpu/camera.h"
 #include "octoray/gpu/gl_context.h"
 #include "octoray/gpu/gpu_renderer.h"
@@ -51,7 +52,6 @@ struct Arguments {
   std::optional<transfer::TransferFunction> defaultTf;
 };
 
-double millisecondsSince(std::chrono::steady_clock::time_point start);
 // "512x384": two positive integers; throws octoray::Error otherwise.
 std::array<int, 2> parseSize(const std::string& text);
 // The PNG and the EXR together: both or neither (gpu::writeImageOutputs).

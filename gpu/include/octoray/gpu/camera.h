@@ -50,6 +50,8 @@ struct Camera {
   // The ray through the centre of pixel (x, y); x, y may be fractional. Perspective rays start
   // at the eye; orthographic rays start on the plane through the eye facing the target.
   Ray ray(double x, double y) const;
+  // tan(fovYDegrees / 2): the half-height of the perspective image at unit distance.
+  double tanHalfFovY() const;
   // Throws octoray::Error when the camera cannot form rays (eye == target, up parallel to the
   // view direction, non-finite values, bad field of view or size).
   void validate() const;
