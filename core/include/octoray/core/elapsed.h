@@ -1,5 +1,6 @@
 #pragma once
-// Wall-clock time since a moment, as every tool and module reports it (milliseconds).
+// Time elapsed since a moment of the steady clock, in milliseconds: how the modules and tools
+// report durations.
 
 #include <chrono>
 
