@@ -17,6 +17,7 @@
 
 #include "octoray/core/atomic_file.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/dicom/formats.h"
@@ -28,18 +29,13 @@ using nlohmann::json;
 
 namespace {
 
-std::string lower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
 bool endsWith(const std::string& s, const std::string& tail) {
   return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
 }
 
 // Volume files that are read by openVolume rather than scanned as DICOM.
 bool isVolumeFileName(const fs::path& path) {
-  const std::string name = lower(path.filename().string());
+  const std::string name = asciiLower(path.filename().string());
   for (const char* ext : {".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".nii.gz", ".vdb"}) {
     if (endsWith(name, ext)) return true;
   }
@@ -47,7 +43,7 @@ bool isVolumeFileName(const fs::path& path) {
 }
 
 bool isTiffName(const fs::path& path) {
-  const std::string name = lower(path.filename().string());
+  const std::string name = asciiLower(path.filename().string());
   return endsWith(name, ".tif") || endsWith(name, ".tiff");
 }
 
@@ -113,7 +109,7 @@ void addVolumeFile(const std::string& path, Collector& c) {
     cand.firstFile = path;
     std::string stem = fs::path(path).filename().string();
     for (const char* ext : {".nii.gz", ".nrrd", ".nhdr", ".mhd", ".mha", ".nii", ".vdb", ".tiff", ".tif"}) {
-      if (endsWith(lower(stem), ext)) {
+      if (endsWith(asciiLower(stem), ext)) {
         stem.resize(stem.size() - std::string(ext).size());
         break;
       }
@@ -198,7 +194,7 @@ void scanArchive(const std::string& archive, const PlanOptions& options, Collect
       continue;
     }
     if (!it->is_regular_file(ec)) continue;
-    if (endsWith(lower(name), ".octoray")) continue;  // stores (an earlier run's output)
+    if (endsWith(asciiLower(name), ".octoray")) continue;  // stores (an earlier run's output)
     if (isVolumeFileName(p)) {
       addVolumeFile(p.string(), c);
     } else if (isTiffName(p)) {

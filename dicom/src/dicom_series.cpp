@@ -14,6 +14,7 @@
 
 #include "gdcm_support.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 
 namespace octoray::dicom {
 namespace fs = std::filesystem;
@@ -419,11 +420,6 @@ void classify(DicomSeries& s) {
   }
 }
 
-std::string lowercase(std::string s) {
-  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
-  return s;
-}
-
 // Resolves a DICOMDIR ReferencedFileID (components joined by '\') under `root`; on
 // case-sensitive file systems it also accepts a different letter case.
 std::optional<fs::path> resolveReferencedFile(const fs::path& root,
@@ -439,7 +435,7 @@ std::optional<fs::path> resolveReferencedFile(const fs::path& root,
     bool found = false;
     if (fs::is_directory(current, ec)) {
       for (const auto& entry : fs::directory_iterator(current, ec)) {
-        if (lowercase(entry.path().filename().string()) == lowercase(part)) {
+        if (asciiLower(entry.path().filename().string()) == asciiLower(part)) {
           current = entry.path();
           found = true;
           break;
@@ -524,7 +520,7 @@ bool readDirectory(const fs::path& dirFile, const fs::path& root, std::set<fs::p
   return true;
 }
 
-bool isDicomDirName(const fs::path& p) { return lowercase(p.filename().string()) == "dicomdir"; }
+bool isDicomDirName(const fs::path& p) { return asciiLower(p.filename().string()) == "dicomdir"; }
 
 }  // namespace
 

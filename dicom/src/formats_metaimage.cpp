@@ -24,6 +24,7 @@
 
 #include "header_text.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 
@@ -91,7 +92,7 @@ MetaHeader readMetaHeader(const std::string& path) {
     std::string canonical = name;
     bool known = false;
     for (const char* field : kMetaFields) {
-      if (detail::lowerCase(field) == detail::lowerCase(name)) {
+      if (asciiLower(field) == asciiLower(name)) {
         canonical = field;
         known = true;
       }
@@ -143,7 +144,7 @@ bool metaBool(const MetaHeader& header, const char* name, bool otherwise,
               const std::string& path) {
   const std::string* text = header.field(name);
   if (!text) return otherwise;
-  const std::string value = detail::lowerCase(*text);
+  const std::string value = asciiLower(*text);
   if (value == "true" || value == "t" || value == "1") return true;
   if (value == "false" || value == "f" || value == "0") return false;
   throw Error(path, fmt::format("{} = '{}': True or False expected", name, text->substr(0, 80)));
@@ -170,7 +171,7 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
     throw Error(path, fmt::format("MetaImage header lacks the required field(s) {}",
                                   fmt::join(missing, ", ")));
   }
-  if (const auto* type = header.field("ObjectType"); type && detail::lowerCase(*type) != "image") {
+  if (const auto* type = header.field("ObjectType"); type && asciiLower(*type) != "image") {
     throw Error(path, fmt::format("ObjectType = '{}': only images are read", type->substr(0, 80)));
   }
   const std::string& nDimsText = *header.field("NDims");
@@ -259,7 +260,7 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
   }
 
   const std::string& dataFile = *header.field("ElementDataFile");
-  const bool local = detail::lowerCase(dataFile) == "local";
+  const bool local = asciiLower(dataFile) == "local";
   if (dataFile.empty() || dataFile.starts_with("LIST") || dataFile.find('%') != std::string::npos) {
     throw Error(path, fmt::format("ElementDataFile = '{}': only LOCAL or a single data file is "
                                   "supported",

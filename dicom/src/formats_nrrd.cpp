@@ -22,6 +22,7 @@
 
 #include "header_text.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 
@@ -187,7 +188,7 @@ Vec3 nrrdSpaceToLps(const std::optional<std::string>& space, std::vector<std::st
     warnings.push_back("no 'space' field: axes are taken as patient LPS");
     return {1, 1, 1};
   }
-  const std::string s = detail::lowerCase(*space);
+  const std::string s = asciiLower(*space);
   if (s == "left-posterior-superior" || s == "lps") return {1, 1, 1};
   if (s == "right-anterior-superior" || s == "ras") return {-1, -1, 1};
   if (s == "left-anterior-superior" || s == "las") return {1, -1, 1};
@@ -199,7 +200,7 @@ Vec3 nrrdSpaceToLps(const std::optional<std::string>& space, std::vector<std::st
 // Kinds of axes that are positions along the grid; any other kind (vector, RGB-color, ...)
 // makes the axis a set of components of one sample.
 bool spatialKind(const std::string& kind) {
-  const std::string k = detail::lowerCase(kind);
+  const std::string k = asciiLower(kind);
   return k == "domain" || k == "space" || k == "time" || k == "???" || k == "none";
 }
 
@@ -350,15 +351,15 @@ void nrrdSampleLayout(const NrrdHeader& header, const std::string& path, detail:
     throw Error(path, e.reason());
   }
   const std::string encoding = *header.field("encoding");
-  if (detail::lowerCase(encoding) == "gzip" || detail::lowerCase(encoding) == "gz") {
+  if (asciiLower(encoding) == "gzip" || asciiLower(encoding) == "gz") {
     layout.compression = detail::Compression::Deflate;
-  } else if (detail::lowerCase(encoding) != "raw") {
+  } else if (asciiLower(encoding) != "raw") {
     throw Error(path, fmt::format("encoding '{}': only raw and gzip NRRD encodings are supported",
                                   encoding));
   }
   layout.bigEndian = kHostBigEndian;
   if (const auto endian = header.field("endian")) {
-    const std::string e = detail::lowerCase(*endian);
+    const std::string e = asciiLower(*endian);
     if (e != "little" && e != "big") {
       throw Error(path, fmt::format("invalid 'endian: {}' (little or big expected)", *endian));
     }
@@ -439,7 +440,7 @@ std::unique_ptr<VolumeSource> openNrrd(const std::string& path) {
     if (unit.size() >= 2 && unit.front() == '"' && unit.back() == '"') {
       unit = unit.substr(1, unit.size() - 2);
     }
-    if (detail::lowerCase(unit) == "hu" || detail::lowerCase(unit) == "hounsfield units") {
+    if (asciiLower(unit) == "hu" || asciiLower(unit) == "hounsfield units") {
       info.unit = "HU";
     } else if (!unit.empty()) {
       info.warnings.push_back(

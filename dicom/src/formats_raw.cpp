@@ -15,6 +15,7 @@
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 
@@ -23,8 +24,7 @@ namespace octoray {
 namespace {
 
 std::string normalizedTypeName(const std::string& name) {
-  std::string s;
-  for (char c : name) s += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  std::string s = asciiLower(name);
   const auto first = s.find_first_not_of(" \t\r\n");
   const auto last = s.find_last_not_of(" \t\r\n");
   if (first == std::string::npos) return {};

@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/formats.h"
 #include "raw_slab_reader.h"
 
@@ -19,8 +20,7 @@ namespace octoray {
 namespace {
 
 bool hasTiffExtension(const std::filesystem::path& file) {
-  std::string ext = file.extension().string();
-  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const std::string ext = asciiLower(file.extension().string());
   return ext == ".tif" || ext == ".tiff";
 }
 

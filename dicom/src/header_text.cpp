@@ -2,7 +2,6 @@
 
 #include "header_text.h"
 
-#include <cctype>
 #include <charconv>
 #include <filesystem>
 #include <sstream>
@@ -20,11 +19,6 @@ void requireRegularFile(const std::string& path) {
 
 std::string fileNameOf(const std::string& path) {
   return std::filesystem::path(path).filename().string();
-}
-
-std::string lowerCase(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
 }
 
 std::string trimmed(const std::string& s) {

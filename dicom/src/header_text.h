@@ -19,8 +19,6 @@ void requireRegularFile(const std::string& path);
 // The last component of `path`.
 std::string fileNameOf(const std::string& path);
 
-std::string lowerCase(std::string s);
-
 // `s` without leading and trailing blanks (space, tab, CR, LF).
 std::string trimmed(const std::string& s);
 

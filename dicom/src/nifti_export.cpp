@@ -16,6 +16,7 @@
 #include <fmt/format.h>
 
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 
 namespace octoray {
 
@@ -224,9 +225,7 @@ struct TempFileGuard {
 
 bool endsWithGz(const std::string& path) {
   if (path.size() < 3) return false;
-  std::string tail = path.substr(path.size() - 3);
-  for (char& c : tail) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return tail == ".gz";
+  return asciiLower(path.substr(path.size() - 3)) == ".gz";
 }
 
 }  // namespace

@@ -2,7 +2,6 @@
 // TIFFs only is a TIFF stack; everything else goes to DICOM discovery, which also recognises
 // single DICOM files without an extension and DICOMDIRs.
 
-#include <cctype>
 #include <filesystem>
 
 #include <fmt/format.h>
@@ -10,6 +9,7 @@
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/formats.h"
 
 namespace octoray {
@@ -19,9 +19,7 @@ namespace {
 namespace fs = std::filesystem;
 
 std::string lowerCaseName(const fs::path& path) {
-  std::string name = path.filename().string();
-  for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return name;
+  return asciiLower(path.filename().string());
 }
 
 bool isTiffName(const std::string& lowerName) {

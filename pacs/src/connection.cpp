@@ -1,6 +1,5 @@
 #include "octoray/pacs/connection.h"
 
-#include <cctype>
 
 #include <fmt/format.h>
 

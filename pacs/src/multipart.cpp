@@ -1,7 +1,6 @@
 #include "octoray/pacs/multipart.h"
 
 #include <algorithm>
-#include <cctype>
 
 #include <fmt/format.h>
 

@@ -12,6 +12,7 @@
 
 #include "formats.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 
 #ifndef OCTORAY_TRANSFER_PRESETS_DIR
 #error "OCTORAY_TRANSFER_PRESETS_DIR must name the shipped presets folder (transfer/CMakeLists.txt)"
@@ -51,18 +52,12 @@ json parseJson(const std::string& text, const std::string& path) {
   }
 }
 
-std::string lower(std::string text) {
-  std::transform(text.begin(), text.end(), text.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return text;
-}
-
 // "a.vp.json" -> "a", "b.vp" -> "b": the name a single-preset file gives its function.
 std::string presetStem(const fs::path& path) {
   std::string stem = path.filename().string();
   for (const char* suffix : {".vp.json", ".json", ".vp", ".xml"}) {
     const std::string s = suffix;
-    if (stem.size() > s.size() && lower(stem.substr(stem.size() - s.size())) == s) {
+    if (stem.size() > s.size() && asciiLower(stem.substr(stem.size() - s.size())) == s) {
       return stem.substr(0, stem.size() - s.size());
     }
   }
@@ -73,7 +68,7 @@ std::vector<TransferFunction> parseByContent(const std::string& text, const fs::
   const std::string path = file.string();
   const std::size_t first = text.find_first_not_of(" \t\r\n\xEF\xBB\xBF");  // BOM tolerated
   if (first == std::string::npos) throw Error(path, "the file is empty");
-  const std::string extension = lower(file.extension().string());
+  const std::string extension = asciiLower(file.extension().string());
   switch (text[first]) {
     case '<':
       return detail::parseSlicerXml(text, path);
@@ -194,7 +189,7 @@ TransferFunction selectTransferFunction(const std::vector<TransferFunction>& tfs
   }
   const TransferFunction* match = nullptr;
   for (const TransferFunction& tf : tfs) {
-    if (lower(tf.name) != lower(name)) continue;
+    if (asciiLower(tf.name) != asciiLower(name)) continue;
     if (match != nullptr) {
       throw Error(path, fmt::format("'{}' matches several names ignoring case; give it exactly",
                                     name));

@@ -14,7 +14,6 @@
 #include <sys/resource.h>
 
 #include <atomic>
-#include <cctype>
 #include <csignal>
 #include <cmath>
 #include <filesystem>
@@ -29,6 +28,7 @@
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/core/paths.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/nifti_export.h"
@@ -391,8 +391,7 @@ enum class ExportFormat { Nifti, Vdb };
 
 // The export format from OUT's extension; a threshold without a .vdb output is a mistake.
 ExportFormat exportFormat(const Arguments& a) {
-  std::string name = std::filesystem::path(a.exportPath).filename().string();
-  for (char& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const std::string name = octoray::asciiLower(std::filesystem::path(a.exportPath).filename().string());
   const bool vdb = name.ends_with(".vdb");
   if (!vdb && !name.ends_with(".nii") && !name.ends_with(".nii.gz")) {
     throw Error(a.exportPath, "unknown export format: name the output .nii, .nii.gz or .vdb");
