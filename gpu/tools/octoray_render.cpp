@@ -699,7 +699,13 @@ int main(int argc, char** argv) {
                "order, as the viewer does (the same view is then the same picture whatever the history)");
   app.add_option("--cut-reference", a.cutReference,
                  "GPU: also render the CPU reference over the LOD cut of the GPU picture (the last "
-                 "frame of --path) to this PNG and report their agreement (DVR and iso)");
+                 "frame of --path) to this PNG (and with --exr to the same name .exr) and report their "
+                 "agreement (DVR and iso)");
+  app.add_option("--cut-truth", a.cutTruthStepMm,
+                 "with --cut-reference: render it as the cut's own truth, at this step in mm and "
+                 "without early termination, so the GPU picture's error on its cut (classification, "
+                 "step) is told apart from what the cut's coarse levels lose")
+      ->check(CLI::PositiveNumber);
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
   try {
     app.parse(argc, argv);
@@ -718,6 +724,9 @@ int main(int argc, char** argv) {
         }
       }
     }
+    if (a.cutTruthStepMm > 0 && a.cutReference.empty()) {
+      throw CLI::ValidationError("--cut-truth", "needs --cut-reference");
+    }
     if (!a.cutReference.empty()) {
       // What the reference does not model, or models differently.
       for (const char* gpuOnly : {"--gradient-pool", "--boundary", "--silhouette", "--clip",
@@ -735,7 +744,7 @@ int main(int argc, char** argv) {
                                   "--upload-mib-per-frame", "--visibility",
                                   "--visibility-threshold", "--path", "--stats",
                                   "--image-adaptive", "--image-adaptive-levels",
-                                  "--repack-when-settled"}) {
+                                  "--repack-when-settled", "--cut-truth"}) {
         if (app.count(gpuOnly) > 0) {
           throw CLI::ValidationError(gpuOnly, "applies to the GPU renderer, not --reference");
         }

@@ -236,6 +236,49 @@ TEST_F(GpuRenderTool, CutReferenceChecksTheConvergedPictureOfAPath) {
   EXPECT_FALSE(std::filesystem::exists(mipOut));
 }
 
+// --cut-truth: the reference over the cut at a fine step and without early termination, the
+// cut's own truth. At a coarse step the GPU picture agrees with the same-step reference (one
+// discretisation) better than with this truth, the truth has converged (halving its step
+// changes little), and the report and the EXR say what was rendered.
+TEST_F(GpuRenderTool, CutTruthIsTheCutsConvergedPicture) {
+  OCTORAY_REQUIRE_CONTEXT(context_);
+  const std::string render = toolPath("octoray-render").string();
+  const std::string gpuExr = (dir / "gpu.exr").string();
+  const std::vector<std::string> common{render, store, "-o", (dir / "gpu.png").string(), "--exr", gpuExr,
+                                        "--preset", "bone", "--size", "64x64", "--azimuth", "30",
+                                        "--elevation", "15", "--lod-pixels", "2", "--step", "2.4", "--json"};
+  auto run = [&](const std::string& name, std::vector<std::string> extra) {
+    std::vector<std::string> args = common;
+    args.insert(args.end(), {"--cut-reference", (dir / (name + ".png")).string()});
+    args.insert(args.end(), extra.begin(), extra.end());
+    const ProcessResult r = runProcess(args);
+    EXPECT_EQ(r.exitCode, 0) << r.err;
+    return r.exitCode == 0 ? nlohmann::json::parse(r.out)["cutReference"] : nlohmann::json();
+  };
+  const auto sameStep = run("same", {});
+  const auto truth = run("truth", {"--cut-truth", "0.15"});
+  const auto finer = run("finer", {"--cut-truth", "0.075"});
+  if (HasFailure()) return;
+  EXPECT_DOUBLE_EQ(sameStep["stepMm"].get<double>(), 2.4);
+  EXPECT_DOUBLE_EQ(sameStep["earlyTermination"].get<double>(), 0.99);
+  EXPECT_DOUBLE_EQ(truth["stepMm"].get<double>(), 0.15);
+  EXPECT_DOUBLE_EQ(truth["earlyTermination"].get<double>(), 1.0);
+  EXPECT_GE(truth["coarsestLevelsAboveLeaf"].get<int>(), 1) << "LOD 2 at 64x64 draws coarse levels";
+  ASSERT_EQ(truth["exr"], (dir / "truth.exr").string());
+  const Image gpu = readImage(gpuExr), truthImage = readImage(truth["exr"].get<std::string>());
+  const ImageMetrics toTruth = compare(gpu, truthImage);
+  EXPECT_NEAR(truth["psnrDb"].get<double>(), toTruth.psnrDb, 0.01) << "the report is about these pictures";
+  EXPECT_GT(compare(truthImage, Image(gpu.width, gpu.height)).maxAbsError, 0.1) << "the truth shows the volume";
+  const double toSameStep = compare(gpu, readImage((dir / "same.exr").string())).psnrDb;
+  EXPECT_GT(toSameStep, toTruth.psnrDb + 10) << "a 2-voxel step is further from the truth than from its own reference";
+  EXPECT_GT(compare(truthImage, readImage((dir / "finer.exr").string())).psnrDb, 50.0) << "converged";
+  // It qualifies --cut-reference, and only that.
+  const std::string out = (dir / "refused.png").string();
+  EXPECT_EQ(runProcess({render, store, "-o", out, "--cut-truth", "0.1"}).exitCode, 2);
+  EXPECT_EQ(runProcess({render, store, "-o", out, "--reference", "--cut-truth", "0.1"}).exitCode, 2);
+  EXPECT_FALSE(std::filesystem::exists(out));
+}
+
 // The leaf-level nodes in a zoomed view (gpu::nodesInFrustum) hold every point a ray of the
 // camera reaches, and not the whole store: rays through pixel centres, corners included,
 // marched through the volume, meet no node outside the list.

@@ -19,7 +19,9 @@ namespace octoray::render_tool {
 // --cut-reference: the CPU reference over the LOD cut the GPU picture was drawn from (the same
 // camera, TF, options and step; ReferenceVolume::fromCut reads only the cut's bricks), written
 // as a PNG and compared with the GPU picture. What checks a converged picture of a volume too
-// large for the full-resolution reference.
+// large for the full-resolution reference. With --cut-truth the reference is the cut's own
+// truth instead (a fine step, no early termination): the GPU picture's distance from it is what
+// its classification and step lose on that cut, apart from what the coarse levels lose.
 nlohmann::json cutReference(const Arguments& a, const volume::StoreReader& store,
                             const gpu::GpuRenderer& renderer, const gpu::Camera& camera,
                             const transfer::TransferFunction& tf, const gpu::Image& gpuImage) {
@@ -30,9 +32,19 @@ nlohmann::json cutReference(const Arguments& a, const volume::StoreReader& store
   const double loadMs = millisecondsSince(start);
   RenderOptions options = renderOptions(a);
   options.stepMm = a.stepMm > 0 ? a.stepMm : renderer.defaultStepMm();
+  if (a.cutTruthStepMm > 0) {
+    options.stepMm = a.cutTruthStepMm;
+    options.earlyTermination = 1.0;
+    options.preintegration = a.mode == "dvr";  // as the leaf truth (bench/accuracy.py): exact per step
+    options.jitter = false;
+  }
   const auto result = gpu::reference::ReferenceRenderer(volume).render(camera, tf, options);
   const double renderMs = millisecondsSince(start) - loadMs;
-  gpu::writeImageOutputs(result.image, {a.cutReference, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, ""});
+  // With --exr the float picture too, beside the PNG (NAME.exr), for comparisons past 8 bits.
+  const std::filesystem::path cutExr =
+      a.exr.empty() ? std::filesystem::path() : std::filesystem::path(a.cutReference).replace_extension(".exr");
+  gpu::writeImageOutputs(result.image,
+                         {a.cutReference, a.srgb ? gpu::PngEncoding::Srgb : gpu::PngEncoding::Clamp, cutExr});
   const gpu::ImageMetrics m = gpu::compare(result.image, gpuImage);
   int64_t coarsest = 0;
   for (const gpu::CutLeaf& leaf : renderer.workingSet().cut()) {
@@ -40,9 +52,11 @@ nlohmann::json cutReference(const Arguments& a, const volume::StoreReader& store
   }
   const nlohmann::json report = {
       {"output", a.cutReference},
+      {"exr", cutExr.string()},
       {"leaves", leaves.size()},
       {"coarsestLevelsAboveLeaf", coarsest},
       {"stepMm", options.stepMm},
+      {"earlyTermination", options.earlyTermination},
       {"psnrDb", std::isfinite(m.psnrDb) ? nlohmann::json(m.psnrDb) : nlohmann::json("inf")},
       {"ssim", m.ssim},
       {"maxAbsError", m.maxAbsError},

@@ -47,6 +47,7 @@ struct Arguments {
   int visibilityThreshold = 4;
   std::string boundary, silhouette, clip;
   std::string cutReference;  // PNG: the CPU reference over the GPU picture's LOD cut
+  double cutTruthStepMm = 0;  // > 0: that reference as the cut's truth (this step, no early termination)
   bool frustumCut = false;   // reference: only the leaf bricks in view
   // Set by resolveDefaults() when neither --preset nor --tf was given.
   std::optional<transfer::TransferFunction> defaultTf;
