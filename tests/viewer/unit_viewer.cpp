@@ -361,6 +361,7 @@ TEST(ViewerSession, JsonRoundTripsEveryField) {
   s.mode = gpu::RaycastMode::Mip;
   s.isoValue = -400;
   s.lodPixels = 2;
+  s.preintegration = true;
   s.wl = {1500, -600};
   s.wlPreset = "lung";
   s.crosshair = {1.5, -2.25, 700};
@@ -373,6 +374,27 @@ TEST(ViewerSession, JsonRoundTripsEveryField) {
   const Session back = sessionFromJson(sessionToJson(s), "s.json");
   EXPECT_EQ(sessionToJson(back), sessionToJson(s));
   EXPECT_EQ(back.measurements.at(0).points.at(2).z, 10);
+  EXPECT_TRUE(back.preintegration);
+}
+
+// quality.preintegration came after version 1's first sessions: one without it still loads,
+// drawn as it was (post-classified); one of the wrong type is named.
+TEST(ViewerSession, PreintegrationIsOptionalAndChecked) {
+  Session s;
+  s.tf = transfer::findPreset("bone");
+  s.preintegration = true;
+  json j = sessionToJson(s);
+  ASSERT_TRUE(j["quality"].contains("preintegration"));
+  EXPECT_TRUE(sessionFromJson(j, "s.json").preintegration);
+  j["quality"].erase("preintegration");
+  EXPECT_FALSE(sessionFromJson(j, "old.json").preintegration);
+  j["quality"]["preintegration"] = "yes";
+  try {
+    sessionFromJson(j, "bad.json");
+    ADD_FAILURE() << "accepted a string";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("quality.preintegration"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ViewerSession, BadFieldsAreNamed) {

@@ -303,6 +303,36 @@ class ViewerGui(unittest.TestCase):
         value = psnr(got, want)
         self.assertGreaterEqual(value, 40.0, f"3D view vs octoray-render: PSNR {value:.1f} dB")
 
+    # The pre-integrated still frame is octoray-render's --preintegration on picture, closer to
+    # it than to the viewer's own post-classified one: the switch reaches the shader.
+    def test_preintegrated_still_frame_matches_octoray_render(self):
+        vw = self.viewer("preint")
+        steps = [
+            {"type": "action", "name": "overlays", "value": False},
+            {"type": "action", "name": "preset", "value": "ct-angiography"},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("post.png")},
+            {"type": "action", "name": "preintegration", "value": True},
+            {"type": "wait-converged"},
+            {"type": "screenshot", "view": "3d", "path": vw.path("pre.png")},
+            {"type": "save-session", "path": vw.path("session.json")},
+        ]
+        vw.run(self.head_store, steps)
+        self.assertTrue(load_json(vw.path("session.json"))["quality"]["preintegration"])
+        camera = load_json(vw.path("pre.png.json"))["views"]["3d"]["camera"]
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        ref = vw.path("render-pre.png")
+        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
+                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "ct-angiography",
+                 "--preintegration", "on", "-o", ref])
+        self.assertEqual(p.returncode, 0, p.stderr)
+        pre, post, want = load_png(vw.path("pre.png")), load_png(vw.path("post.png")), load_png(ref)
+        self.assertGreater(float(want.std()), 10.0, "reference is blank")
+        to_ref, to_post = psnr(pre, want), psnr(pre, post)
+        self.assertGreaterEqual(to_ref, 40.0, f"pre-integrated 3D view vs octoray-render: PSNR {to_ref:.1f} dB")
+        self.assertGreater(to_ref, to_post + 3, f"{to_ref:.1f} dB to octoray-render's, {to_post:.1f} dB to post")
+
     # An edited transfer function takes effect at once, and the picture is octoray-render's
     # with the same (saved) function.
     def test_transfer_function_edit(self):

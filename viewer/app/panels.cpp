@@ -260,6 +260,12 @@ void App::drawPanels() {
     }
     ImGui::Checkbox("shading", &session.shading);
     ImGui::SameLine();
+    ImGui::Checkbox("pre-integrated", &session.preintegration);
+    if (ImGui::IsItemHovered()) {
+      ImGui::SetTooltip("DVR: classify each step exactly instead of at its sample. Removes the grain\n"
+                        "of sharp transfer functions (CT-AAA, angiography); still frames take about\n"
+                        "twice as long. Interactive frames stay post-classified.");
+    }
     ImGui::Checkbox("interactive quality", &session.interactiveQuality);
     for (const char* v : {"A", "P", "L", "R", "S", "I"}) {
       if (ImGui::Button(v, ImVec2(36, 0))) standardView(v[0]);

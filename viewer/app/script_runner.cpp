@@ -201,6 +201,7 @@ void App::action(const std::string& name, const nlohmann::json& value) {
   }
   else if (name == "patient-info") session.patientInfo = value.get<bool>();
   else if (name == "interactive-quality") session.interactiveQuality = value.get<bool>();
+  else if (name == "preintegration") session.preintegration = value.get<bool>();
   else if (name == "crosshair") {
     if (!value.is_array() || value.size() != 3) throw Error("", "action crosshair: expected [x, y, z]");
     session.crosshair = {value[0].get<double>(), value[1].get<double>(), value[2].get<double>()};

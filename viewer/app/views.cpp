@@ -64,6 +64,7 @@ gpu::RaycastOptions View3d::raycastOptions(const Session& s) const {
   o.earlyTermination = s.earlyTermination;
   o.shading = s.shading ? gpu::RaycastOptions::Shading::FromTransferFunction
                         : gpu::RaycastOptions::Shading::Off;
+  o.preintegration = s.preintegration && s.mode == gpu::RaycastMode::Dvr;
   o.clip = clipOptions(s.clip);
   return o;
 }
@@ -84,9 +85,9 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   // What the picture shows (camera, TF, mode, quality) apart from interactive quality; a
   // change while the user is interacting renders at interactive quality until it settles.
   const std::string content = fmt::format(
-      "{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{},{},{},{},{},{}", gpu::cameraToJson(s.camera).dump(),
+      "{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{},{},{},{},{},{}", gpu::cameraToJson(s.camera).dump(),
       transfer::transferFunctionToJsonText(s.tf), modeName(s.mode), s.isoValue, s.lodPixels,
-      s.stepFactor, s.earlyTermination, s.shading, width, height, s.clip.enabled, s.clip.lo.x,
+      s.stepFactor, s.earlyTermination, s.shading, s.preintegration, width, height, s.clip.enabled, s.clip.lo.x,
       s.clip.lo.y, s.clip.lo.z, s.clip.hi.x, s.clip.hi.y, s.clip.hi.z);
   if (content != lastContent_) {
     lastContent_ = content;
@@ -101,9 +102,11 @@ void View3d::update(const Session& s, int width, int height, bool interacting) {
   gpu::RaycastOptions o = raycastOptions(s);
   if (interactive) {
     // Interactive quality: half resolution, coarser levels, and rays only where the picture
-    // has detail (image-plane adaptive sampling at its interactive bound).
+    // has detail (image-plane adaptive sampling at its interactive bound); post-classified,
+    // since pre-integration costs about twice the time (docs/accuracy.md).
     o.lodPixels = std::max(2.0, 2.0 * s.lodPixels);
     o.imageAdaptive = gpu::kImageAdaptiveInteractiveThreshold;
+    o.preintegration = false;
   }
   const std::string key = fmt::format("{}|{}", content, interactive);
   if (key != lastKey_) {

@@ -142,6 +142,7 @@ json sessionToJson(const Session& s) {
                   {"stepFactor", s.stepFactor},
                   {"earlyTermination", s.earlyTermination},
                   {"shading", s.shading},
+                  {"preintegration", s.preintegration},
                   {"interactive", s.interactiveQuality}};
   j["clip"] = {{"enabled", s.clip.enabled}, {"lo", vec(s.clip.lo)}, {"hi", vec(s.clip.hi)}};
   j["windowLevel"] = {{"window", s.wl.window}, {"level", s.wl.level}, {"preset", s.wlPreset}};
@@ -202,13 +203,16 @@ Session sessionFromJson(const json& j, const std::string& path) {
   s.mode = r.name(j, "mode", "mode", kModes, "mode");
   s.isoValue = r.number(j, "isoValue", "isoValue");
   const json& q = r.at(j, "quality", "quality");
-  rejectUnknown(q, {"lodPixels", "stepFactor", "earlyTermination", "shading", "interactive"}, r, "quality");
+  rejectUnknown(q, {"lodPixels", "stepFactor", "earlyTermination", "shading", "preintegration", "interactive"}, r,
+                "quality");
   s.lodPixels = r.number(q, "lodPixels", "quality.lodPixels");
   if (s.lodPixels < 0) r.fail("quality.lodPixels", "expected >= 0");
   s.stepFactor = r.positive(q, "stepFactor", "quality.stepFactor");
   s.earlyTermination = r.positive(q, "earlyTermination", "quality.earlyTermination");
   if (s.earlyTermination > 1) r.fail("quality.earlyTermination", "expected (0, 1]");
   s.shading = r.boolean(q, "shading", "quality.shading");
+  // Sessions saved before it existed have none: post-classified, as they were drawn.
+  s.preintegration = q.contains("preintegration") && r.boolean(q, "preintegration", "quality.preintegration");
   s.interactiveQuality = r.boolean(q, "interactive", "quality.interactive");
   const json& clip = r.at(j, "clip", "clip");
   rejectUnknown(clip, {"enabled", "lo", "hi"}, r, "clip");

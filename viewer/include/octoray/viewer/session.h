@@ -90,6 +90,7 @@ struct Session {
   double stepFactor = 1.0;             // x the renderer's default step
   double earlyTermination = 0.99;
   bool shading = true;                 // DVR: Phong shading when the TF asks for it
+  bool preintegration = false;         // DVR still frames: pre-integrated classification (sharp TFs)
   bool interactiveQuality = true;      // half resolution, coarser LOD, image-adaptive rays while moving
   ClipBox clip;
   // MPR
