@@ -169,6 +169,15 @@ class ViewerGui(unittest.TestCase):
         os.makedirs(d, exist_ok=True)
         return Viewer(d)
 
+    def render_as_viewed(self, vw, store, camera, out, *options):
+        """octoray-render's picture of `store` with the 3D view's camera (and size) and
+        `options`, to `out`; the run must succeed."""
+        with open(vw.path("camera.json"), "w") as f:
+            json.dump(camera, f)
+        p = run([os.path.join(BIN, "octoray-render"), store, "--camera", vw.path("camera.json"),
+                 "--size", f"{camera['width']}x{camera['height']}", *options, "-o", out])
+        self.assertEqual(p.returncode, 0, p.stderr)
+
     def assert_mpr_matches(self, volume, shot, state, view, wl=None, label="", function="LINEAR"):
         """The view's pixels equal the reference slice through the plane the viewer reports,
         in DICOM's VOI function `function` (LINEAR, LINEAR_EXACT or SIGMOID)."""
@@ -291,12 +300,8 @@ class ViewerGui(unittest.TestCase):
         state = load_json(vw.path("view3d.png.json"))
         camera = state["views"]["3d"]["camera"]
         self.assertNotAlmostEqual(camera["eye"][0], 0.0, places=1, msg="the drag did not rotate the camera")
-        with open(vw.path("camera.json"), "w") as f:
-            json.dump(camera, f)
         ref = vw.path("render.png")
-        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
-                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "bone", "-o", ref])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        self.render_as_viewed(vw, self.head_store, camera, ref, "--preset", "bone")
         got, want = load_png(vw.path("view3d.png")), load_png(ref)
         self.assertEqual(got.shape, want.shape)
         self.assertGreater(float(want.std()), 10.0, "reference is blank")
@@ -320,13 +325,8 @@ class ViewerGui(unittest.TestCase):
         vw.run(self.head_store, steps)
         self.assertTrue(load_json(vw.path("session.json"))["quality"]["preintegration"])
         camera = load_json(vw.path("pre.png.json"))["views"]["3d"]["camera"]
-        with open(vw.path("camera.json"), "w") as f:
-            json.dump(camera, f)
         ref = vw.path("render-pre.png")
-        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
-                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "ct-angiography",
-                 "--preintegration", "on", "-o", ref])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        self.render_as_viewed(vw, self.head_store, camera, ref, "--preset", "ct-angiography", "--preintegration", "on")
         pre, post, want = load_png(vw.path("pre.png")), load_png(vw.path("post.png")), load_png(ref)
         self.assertGreater(float(want.std()), 10.0, "reference is blank")
         to_ref, to_post = psnr(pre, want), psnr(pre, post)
@@ -350,12 +350,7 @@ class ViewerGui(unittest.TestCase):
         vw.run(self.head_store, steps, extra=["--preset", "bone"])
         state = load_json(vw.path("after.png.json"))
         camera = state["views"]["3d"]["camera"]
-        with open(vw.path("camera.json"), "w") as f:
-            json.dump(camera, f)
-        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
-                 "--size", f"{camera['width']}x{camera['height']}", "--tf", vw.path("edited.json"),
-                 "-o", vw.path("render.png")])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        self.render_as_viewed(vw, self.head_store, camera, vw.path("render.png"), "--tf", vw.path("edited.json"))
         before, after, want = (load_png(vw.path(n)) for n in ("before.png", "after.png", "render.png"))
         self.assertLess(psnr(before, after), 32.0, "the edit did not change the picture")
         self.assertGreater(float(after[:, :, 2].mean() - before[:, :, 2].mean()), 2.0, "bone should turn from ivory to white")
@@ -387,13 +382,8 @@ class ViewerGui(unittest.TestCase):
         self.assertEqual(clip["lo"], [-0.5, -0.5, -0.5])
         self.assertEqual(clip["hi"][1:], [511.5, 139.5])
         camera = state["views"]["3d"]["camera"]
-        with open(vw.path("camera.json"), "w") as f:
-            json.dump(camera, f)
         box = ",".join(str(v) for v in clip["lo"] + clip["hi"])
-        p = run([os.path.join(BIN, "octoray-render"), self.head_store, "--camera", vw.path("camera.json"),
-                 "--size", f"{camera['width']}x{camera['height']}", "--preset", "bone", "--clip", box,
-                 "-o", vw.path("render.png")])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        self.render_as_viewed(vw, self.head_store, camera, vw.path("render.png"), "--preset", "bone", "--clip", box)
         got, want = load_png(vw.path("cut.png")), load_png(vw.path("render.png"))
         self.assertGreaterEqual(psnr(got, want), 40.0)
         uncut = load_png(vw.path("uncut.png"))
@@ -641,12 +631,8 @@ class ViewerGui(unittest.TestCase):
         self.assertGreater(iso, (-900 + 1024) / 4096)
         self.assertLess(iso, (-100 + 1024) / 4096)
         camera = state["views"]["3d"]["camera"]
-        with open(vw.path("camera.json"), "w") as f:
-            json.dump(camera, f)
         ref = vw.path("render.png")
-        p = run([os.path.join(BIN, "octoray-render"), state["dataset"]["store"], "--mode", "iso", "--iso", repr(iso),
-                 "--camera", vw.path("camera.json"), "--size", f"{camera['width']}x{camera['height']}", "-o", ref])
-        self.assertEqual(p.returncode, 0, p.stderr)
+        self.render_as_viewed(vw, state["dataset"]["store"], camera, ref, "--mode", "iso", "--iso", repr(iso))
         got, want = load_png(vw.path("iso.png")), load_png(ref)
         self.assertEqual(got.shape, want.shape)
         # The head's surface covers a good part of the view (the background is uniform).
