@@ -35,10 +35,10 @@ namespace octoray::pacs {
 namespace {
 
 using detail::Association;
+using detail::checkAeTitle;
 using detail::ContextRequest;
 using detail::statusHex;
 using detail::uncompressedSyntaxes;
-using detail::validAeTitle;
 
 // SOPInstanceUIDs per C-GET request when only some instances are wanted (4 KB of keys).
 constexpr std::size_t kUidsPerGet = 64;
@@ -385,10 +385,7 @@ DimseEndpoint parseDimseUrl(const std::string& url) {
     endpoint.port = std::stoi(port);
   }
   if (endpoint.host.empty()) throw Error(url, "the host is missing: " + expected);
-  if (!validAeTitle(endpoint.calledAet)) {
-    throw Error(url, "the AE title '" + endpoint.calledAet +
-                         "' is not valid (1 to 16 characters, no backslash)");
-  }
+  checkAeTitle(url, "the AE title", endpoint.calledAet);
   return endpoint;
 }
 

@@ -29,14 +29,8 @@ void checkEndpoint(const DimseEndpoint& endpoint) {
     throw Error(name, "the host name must have 1 to 57 characters");
   }
   if (endpoint.port < 1 || endpoint.port > 65535) throw Error(name, "the port must be 1 to 65535");
-  if (!validAeTitle(endpoint.calledAet)) {
-    throw Error(name, "the called AE title '" + endpoint.calledAet +
-                          "' is not valid (1 to 16 characters, no backslash)");
-  }
-  if (!validAeTitle(endpoint.callingAet)) {
-    throw Error(name, "the calling AE title '" + endpoint.callingAet +
-                          "' is not valid (1 to 16 characters, no backslash)");
-  }
+  checkAeTitle(name, "the called AE title", endpoint.calledAet);
+  checkAeTitle(name, "the calling AE title", endpoint.callingAet);
   if (endpoint.timeoutSeconds < 1) throw Error(name, "the timeout must be at least 1 second");
 }
 
@@ -93,11 +87,14 @@ struct SocketOf : DcmTransportConnection {
 }  // namespace
 
 // PS3.5 AE: 1 to 16 characters of the default repertoire, no backslash, not only spaces.
-bool validAeTitle(const std::string& aet) {
-  if (aet.empty() || aet.size() > 16) return false;
-  if (aet.find_first_not_of(' ') == std::string::npos) return false;
-  return std::all_of(aet.begin(), aet.end(),
-                     [](char c) { return c >= 0x20 && c < 0x7f && c != '\\'; });
+void checkAeTitle(const std::string& source, const std::string& what, const std::string& aet) {
+  const bool valid = !aet.empty() && aet.size() <= 16 &&
+                     aet.find_first_not_of(' ') != std::string::npos &&
+                     std::all_of(aet.begin(), aet.end(),
+                                 [](char c) { return c >= 0x20 && c < 0x7f && c != '\\'; });
+  if (!valid) {
+    throw Error(source, what + " '" + aet + "' is not valid (1 to 16 characters, no backslash)");
+  }
 }
 
 std::string statusHex(Uint16 status) { return fmt::format("0x{:04X}", status); }

@@ -15,8 +15,9 @@
 
 namespace octoray::pacs::detail {
 
-// PS3.5 AE: 1 to 16 characters of the default repertoire, no backslash, not only spaces.
-bool validAeTitle(const std::string& aet);
+// Throws Error(source, "<what> '<aet>' is not valid ...") unless `aet` is a PS3.5 AE title:
+// 1 to 16 characters of the default repertoire, no backslash, not only spaces.
+void checkAeTitle(const std::string& source, const std::string& what, const std::string& aet);
 
 // A DIMSE status as PS3.7 writes it: "0xA700".
 std::string statusHex(Uint16 status);

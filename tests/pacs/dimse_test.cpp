@@ -407,6 +407,9 @@ TEST(DimseUrl, ParsesCalledAetHostAndPort) {
       EXPECT_EQ(e.path(), bad);
     }
   }
+  for (const std::string bad : {"dicom://AE_TITLE_OF_17_CHARS@host", "dicom://A\\B@host"}) {
+    EXPECT_ERROR_CONTAINING(pacs::parseDimseUrl(bad), bad, "the AE title", "is not valid");
+  }
 }
 
 TEST(DimseErrors, NothingListeningFailsAtOnceNamingTheServer) {
