@@ -105,7 +105,9 @@ void App::drawViews() {
         std::transform(line.begin(), line.begin() + 3, line.begin(), ::toupper);
         put(fs, ImVec2(a.x + 8, a.y + 8 + fs), text, line);
         if (view3d_) {
-          const std::string q = view3d_->converged() ? "full quality"
+          // Interactive frames are post-classified whatever the box says (views.cpp).
+          const bool pre = session.preintegration && session.mode == gpu::RaycastMode::Dvr;
+          const std::string q = view3d_->converged() ? (pre ? "full quality, pre-integrated" : "full quality")
                                 : (controller_.dragging3d() || interactionFrames_ > 0) ? "interactive (half resolution)"
                                                                                          : "refining\u2026";
           put(fs * 0.9f, ImVec2(a.x + 8, b.y - fs - 6), dim, q);
