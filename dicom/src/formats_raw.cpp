@@ -242,7 +242,46 @@ class InflateReader {
     return inflateInto(dst, n);
   }
 
+  // Decompressed bytes the stream has delivered so far: after a short read, all it holds.
+  uint64_t delivered() const { return position_; }
+
+  // Reads on to the end of the gzip or zlib member that holds the bytes delivered so far, so
+  // that zlib checks its trailer (gzip's CRC-32 and length, zlib's Adler-32) once the last
+  // sample has been read: without it a flipped bit that still inflates would pass as data.
+  // Throws if the check fails or the file ends before the trailer.
+  void checkTrailer() {
+    std::vector<unsigned char> scratch(1 << 16);
+    while (!memberEnded_) {
+      if (stream_.avail_in == 0 && !refill()) {
+        throw Error(path_, "compressed data ends before its checksum (the file is truncated)");
+      }
+      stream_.next_out = scratch.data();
+      stream_.avail_out = static_cast<uInt>(scratch.size());
+      const int rc = inflate(&stream_, Z_NO_FLUSH);
+      position_ += scratch.size() - stream_.avail_out;
+      if (rc == Z_STREAM_END) {
+        memberEnded_ = true;
+      } else if (rc != Z_OK && !(rc == Z_BUF_ERROR && stream_.avail_in == 0)) {
+        throw corrupt(rc);
+      }
+    }
+  }
+
  private:
+  Error corrupt(int rc) const {
+    return Error(path_, fmt::format("corrupt compressed data ({})",
+                                    stream_.msg ? stream_.msg : zError(rc)));
+  }
+
+  // The next block of the file as zlib's input; false at the end of the file.
+  bool refill() {
+    file_.read(reinterpret_cast<char*>(input_.data()), static_cast<std::streamsize>(input_.size()));
+    const auto got = static_cast<uInt>(file_.gcount());
+    stream_.next_in = input_.data();
+    stream_.avail_in = got;
+    return got > 0;
+  }
+
   void start() {
     file_.clear();
     file_.seekg(static_cast<std::streamoff>(fileOffsetBytes_));
@@ -257,14 +296,7 @@ class InflateReader {
     stream_.next_out = dst;
     stream_.avail_out = static_cast<uInt>(n);
     while (stream_.avail_out > 0) {
-      if (stream_.avail_in == 0) {
-        file_.read(reinterpret_cast<char*>(input_.data()),
-                   static_cast<std::streamsize>(input_.size()));
-        const auto got = static_cast<uInt>(file_.gcount());
-        if (got == 0) break;  // end of file: the caller reports the shortfall
-        stream_.next_in = input_.data();
-        stream_.avail_in = got;
-      }
+      if (stream_.avail_in == 0 && !refill()) break;  // end of file: the caller reports it
       if (memberEnded_) {
         // gzip allows several members back to back; more data is wanted, so go on.
         inflateReset(&stream_);
@@ -274,8 +306,7 @@ class InflateReader {
       if (rc == Z_STREAM_END) {
         memberEnded_ = true;
       } else if (rc != Z_OK && !(rc == Z_BUF_ERROR && stream_.avail_in == 0)) {
-        throw Error(path_, fmt::format("corrupt compressed data ({})",
-                                       stream_.msg ? stream_.msg : zError(rc)));
+        throw corrupt(rc);
       }
     }
     const std::size_t produced = n - stream_.avail_out;
@@ -306,7 +337,7 @@ class RawSource final : public VolumeSource {
       // error at open rather than at the first slab.
       unsigned char first[8];
       const std::size_t want = sampleBytes(layout_.sampleType);
-      if (inflater_->readAt(layout_.streamOffsetBytes, first, want) != want) throwTruncated(0);
+      if (inflater_->readAt(layout_.streamOffsetBytes, first, want) != want) throwTruncated();
     }
   }
 
@@ -346,9 +377,8 @@ class RawSource final : public VolumeSource {
   void readBytes(uint64_t streamPos, std::size_t n) {
     auto* dst = buffer_.data();
     if (inflater_) {
-      if (inflater_->readAt(layout_.streamOffsetBytes + streamPos, dst, n) != n) {
-        throwTruncated(streamPos);
-      }
+      if (inflater_->readAt(layout_.streamOffsetBytes + streamPos, dst, n) != n) throwTruncated();
+      if (streamPos + n == totalBytes_) inflater_->checkTrailer();
       return;
     }
     file_.clear();
@@ -362,11 +392,14 @@ class RawSource final : public VolumeSource {
     }
   }
 
-  [[noreturn]] void throwTruncated(uint64_t streamPos) const {
+  [[noreturn]] void throwTruncated() const {
+    const uint64_t delivered = inflater_->delivered();
+    const uint64_t held =
+        delivered > layout_.streamOffsetBytes ? delivered - layout_.streamOffsetBytes : 0;
     throw Error(layout_.dataPath,
                 fmt::format("compressed data ends early: expected {} bytes of samples, the stream "
-                            "ends before byte {}",
-                            totalBytes_, streamPos + 1));
+                            "holds {}",
+                            totalBytes_, held));
   }
 
   VolumeInfo info_;

@@ -108,9 +108,11 @@ inline std::string readFile(const fs::path& path) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
-inline std::string gzipBytes(const std::string& bytes) {
+// Level 0 stores the bytes uncompressed: a flipped byte in them still inflates, and only the
+// trailer's checksum can tell.
+inline std::string gzipBytes(const std::string& bytes, int level = 6) {
   z_stream z{};
-  EXPECT_EQ(deflateInit2(&z, 6, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY), Z_OK);
+  EXPECT_EQ(deflateInit2(&z, level, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY), Z_OK);
   std::string out(deflateBound(&z, bytes.size()) + 64, '\0');
   z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(bytes.data()));
   z.avail_in = static_cast<uInt>(bytes.size());
@@ -122,11 +124,11 @@ inline std::string gzipBytes(const std::string& bytes) {
   return out;
 }
 
-inline std::string zlibBytes(const std::string& bytes) {
+inline std::string zlibBytes(const std::string& bytes, int level = 6) {
   uLongf size = compressBound(bytes.size());
   std::string out(size, '\0');
   EXPECT_EQ(compress2(reinterpret_cast<Bytef*>(out.data()), &size,
-                      reinterpret_cast<const Bytef*>(bytes.data()), bytes.size(), 6),
+                      reinterpret_cast<const Bytef*>(bytes.data()), bytes.size(), level),
             Z_OK);
   out.resize(size);
   return out;

@@ -217,6 +217,50 @@ TEST(NrrdFormat, DetachedGzipDataReadsForwardAndBackward) {
   expectValues(*source, 1, expected);  // starts over from slice 0: the stream is rewound
 }
 
+// A flipped byte in stored (level 0) deflate data still inflates; only the trailer's checksum
+// (gzip's CRC-32, zlib's Adler-32) can tell, so the last slab's read checks it. So must a
+// trailer that is missing although every sample is there.
+TEST(NrrdFormat, CompressedDataIsCheckedAgainstItsChecksum) {
+  const auto dir = test::freshTempDir("nrrd_checksum");
+  const std::array<int64_t, 3> dims{16, 16, 8};
+  const std::string samples = encode<int16_t>(dims, false);
+  const auto readAll = [&](const std::string& header) {
+    auto source = openNrrd((dir / header).string());
+    std::vector<float> slab(16 * 16 * 2);
+    for (int64_t k = 0; k < 8; k += 2) source->readSlab(k, 2, slab);
+  };
+  const auto write = [&](const std::string& name, const std::string& data,
+                         const std::string& encoding) {
+    writeFile(dir / (name + ".gz"), data);
+    writeFile(dir / (name + ".nhdr"),
+              nrrdHeader("short", dims,
+                         "endian: little\nencoding: " + encoding + "\ndata file: " + name + ".gz\n"));
+  };
+
+  const std::string good = gzipBytes(samples, 0);
+  write("good", good, "gzip");
+  EXPECT_NO_THROW(readAll("good.nhdr"));
+
+  std::string flipped = good;
+  flipped[flipped.size() / 2] ^= 0x55;  // a sample byte in the middle of the stored block
+  write("flipped", flipped, "gzip");
+  expectErrorMentioning([&] { readAll("flipped.nhdr"); }, "flipped.gz: corrupt compressed data");
+
+  std::string zlibFlipped = zlibBytes(samples, 0);
+  zlibFlipped[zlibFlipped.size() / 2] ^= 0x55;
+  write("zflipped", zlibFlipped, "gzip");  // NRRD's gzip reader takes zlib streams too
+  expectErrorMentioning([&] { readAll("zflipped.nhdr"); }, "zflipped.gz: corrupt compressed data");
+
+  write("notrailer", good.substr(0, good.size() - 8), "gzip");  // CRC-32 and length cut off
+  expectErrorMentioning([&] { readAll("notrailer.nhdr"); },
+                        "notrailer.gz: compressed data ends before its checksum");
+
+  // Cut inside the samples: the message says how many bytes the stream holds.
+  write("short", gzipBytes(samples.substr(0, 1000), 0), "gzip");
+  expectErrorMentioning([&] { readAll("short.nhdr"); },
+                        "expected 4096 bytes of samples, the stream holds 1000");
+}
+
 TEST(NrrdFormat, TruncatedDataAndBadHeadersThrow) {
   const auto dir = test::freshTempDir("nrrd_bad");
   const std::array<int64_t, 3> dims{16, 16, 4};
