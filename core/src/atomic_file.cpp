@@ -40,4 +40,16 @@ void writeFileAtomically(const std::filesystem::path& path, std::string_view byt
   }
 }
 
+void checkOutputIsNotAnInput(const std::filesystem::path& output,
+                             const std::vector<std::string>& inputs) {
+  std::error_code ec;
+  if (!std::filesystem::exists(output, ec)) return;
+  for (const std::string& input : inputs) {
+    if (std::filesystem::equivalent(output, input, ec)) {
+      throw Error(output.string(), "the output is the same file as the input " + input +
+                                       ": writing it would destroy the input");
+    }
+  }
+}
+
 }  // namespace octoray

@@ -1,5 +1,6 @@
 // Export of any VolumeSource as NIfTI-1, streamed slab by slab, through a temporary file.
 
+#include "octoray/core/atomic_file.h"
 #include "octoray/dicom/nifti_export.h"
 
 #include <unistd.h>
@@ -232,6 +233,7 @@ bool endsWithGz(const std::string& path) {
 
 void exportNifti(VolumeSource& source, const std::string& path, const NiftiExportOptions& options) {
   const VolumeInfo& info = source.info();
+  checkOutputIsNotAnInput(path, info.sourceFiles);
   for (int64_t d : info.dims) {
     if (d < 1 || d > std::numeric_limits<int16_t>::max()) {
       throw Error(path, fmt::format("NIfTI-1 cannot hold dimensions {}x{}x{} (each 1..32767)",

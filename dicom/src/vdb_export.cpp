@@ -2,6 +2,7 @@
 // 8x8x8 leaf nodes) and written through a temporary file, without holding the grid in memory
 // (see "Memory holds neither the grid's values nor its topology" below).
 
+#include "octoray/core/atomic_file.h"
 #include "octoray/dicom/vdb.h"
 
 #include <unistd.h>
@@ -521,6 +522,7 @@ class StreamingVdbWriter final : public openvdb::io::Archive {
 VdbExportReport exportVdb(VolumeSource& source, const std::string& path,
                           const VdbExportOptions& options) {
   const VolumeInfo& info = source.info();
+  checkOutputIsNotAnInput(path, info.sourceFiles);
   for (int64_t d : info.dims) {
     if (d < 1 || d > std::numeric_limits<int32_t>::max()) {
       throw Error(path, fmt::format("OpenVDB cannot hold dimensions {}x{}x{} (each 1..2^31-1)",

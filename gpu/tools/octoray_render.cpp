@@ -40,6 +40,7 @@
 #include <vector>
 
 #include "cli_support.h"
+#include "octoray/core/atomic_file.h"
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/camera.h"
@@ -534,7 +535,8 @@ int runGpu(const Arguments& a, std::optional<TemporaryStore>& temporary) {
   return 0;
 }
 
-// Output folders are checked before the (possibly long) rendering.
+// Outputs are checked before the (possibly long) rendering: their folders must be writable,
+// and none may be one of the files read.
 void checkOutputFolders(const Arguments& a) {
   for (const std::string& out : {a.output, a.exr, a.cutReference}) {
     if (out.empty()) continue;
@@ -542,6 +544,7 @@ void checkOutputFolders(const Arguments& a) {
     std::error_code ec;
     if (!std::filesystem::is_directory(folder, ec)) throw Error(out, "its folder does not exist");
     if (::access(folder.c_str(), W_OK) != 0) throw Error(out, "its folder is not writable");
+    checkOutputIsNotAnInput(out, {a.path, a.tfPath, a.camera, a.cameraPath});
   }
 }
 

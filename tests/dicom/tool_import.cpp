@@ -315,6 +315,43 @@ TEST(ToolImportBadInput, NonexistentPath) {
   expectOnly(outDir, {});
 }
 
+// An output that is one of the files read (by its own name, through a link, or as a
+// detached NRRD's data file) is refused before anything is written, and the file is intact.
+TEST(ToolImportBadInput, OutputThatIsAnInputIsRefused) {
+  const auto bytesOf = [](const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const fs::path series = writeSeries("self_series");
+  const fs::path slice = series / "CT0006.dcm";
+  ASSERT_TRUE(fs::exists(slice));
+  const std::string sliceBytes = bytesOf(slice);
+  expectInputError(runImport({series.string(), "-o", slice.string()}),
+                   slice.string() + ": the output is the same file as the input");
+  EXPECT_EQ(bytesOf(slice), sliceBytes);
+
+  const fs::path dir = test::freshTempDir("self_nrrd");
+  std::ofstream(dir / "v.raw", std::ios::binary) << std::string(16 * 16 * 4 * 2, '\x01');
+  std::ofstream(dir / "v.nhdr") << "NRRD0004\ntype: short\ndimension: 3\nsizes: 16 16 4\n"
+                                   "encoding: raw\nendian: little\ndata file: v.raw\n";
+  fs::create_symlink(dir / "v.raw", dir / "link.raw");
+  fs::create_hard_link(dir / "v.raw", dir / "hard.raw");
+  const std::string header = (dir / "v.nhdr").string();
+  const std::string rawBytes = bytesOf(dir / "v.raw");
+  for (const fs::path& out : {dir / "v.nhdr", dir / "v.raw", dir / "link.raw", dir / "hard.raw"}) {
+    expectInputError(runImport({header, "-o", out.string()}),
+                     out.string() + ": the output is the same file as the input");
+  }
+  EXPECT_EQ(bytesOf(dir / "v.raw"), rawBytes);
+  EXPECT_EQ(bytesOf(dir / "v.nhdr").substr(0, 8), "NRRD0004");
+
+  const std::string nii = (dir / "v.nii").string();
+  ASSERT_EQ(runImport({"--export", nii, header}).exitCode, 0);
+  const std::string niiBytes = bytesOf(nii);
+  expectInputError(runImport({"--export", nii, nii}), nii + ": the output is the same file as the input");
+  EXPECT_EQ(bytesOf(nii), niiBytes);
+}
+
 TEST(ToolImportBadInput, EmptyFolder) {
   const fs::path empty = test::freshTempDir("empty");
   const fs::path outDir = test::freshTempDir("out");

@@ -21,6 +21,11 @@
 namespace octoray::test {
 namespace {
 
+std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
 class RenderTools : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -106,6 +111,23 @@ TEST_F(RenderTools, ModesAndErrors) {
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
     EXPECT_EQ(e.path().filename().string().find(".partial"), std::string::npos) << e.path();
   }
+  // An output that is the input, the transfer function or the camera file: refused before
+  // anything is written, the file intact (it was overwritten by the PNG).
+  const std::string nrrdBytes = slurp(nrrd);
+  const ProcessResult self = runProcess({render, nrrd, "-o", nrrd, "--preset", "bone", "--reference"});
+  EXPECT_EQ(self.exitCode, 1);
+  EXPECT_NE(self.err.find(nrrd + ": the output is the same file as the input " + nrrd), std::string::npos)
+      << self.err;
+  EXPECT_EQ(slurp(nrrd), nrrdBytes);
+  const std::string tf = (dir / "tf.json").string();
+  std::ofstream(tf) << R"({"format": "octoray-transfer-function", "version": 1, "transferFunctions": [
+                           {"name": "ramp", "color": [[0, 1, 1, 1], [1000, 1, 1, 1]],
+                            "opacity": [[0, 0], [1000, 1]]}]})";
+  const std::string tfBytes = slurp(tf);
+  const ProcessResult overTf = runProcess({render, nrrd, "-o", out, "--exr", tf, "--tf", tf, "--reference"});
+  EXPECT_EQ(overTf.exitCode, 1);
+  EXPECT_NE(overTf.err.find("the output is the same file as the input"), std::string::npos) << overTf.err;
+  EXPECT_EQ(slurp(tf), tfBytes);
   // A field of view of 0: named as such (it said "camera: non-finite vector").
   const ProcessResult fov = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--fov", "0"});
   EXPECT_EQ(fov.exitCode, 1);

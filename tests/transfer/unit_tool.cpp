@@ -49,6 +49,16 @@ TEST(OctorayTf, ListAndConvert) {
   const fs::path all = dir / "all.json";
   EXPECT_EQ(test::runProcess({tool, "convert", input.string(), "--all", "-o", all.string()}).exitCode, 0);
   EXPECT_EQ(loadTransferFunctions(all).size(), 2u);
+
+  // Converting a file onto itself would replace the presets with one function: refused.
+  const test::ProcessResult self =
+      test::runProcess({tool, "convert", input.string(), "--tf-name", "First", "-o", input.string()});
+  EXPECT_EQ(self.exitCode, 1);
+  EXPECT_NE(self.err.find(input.string() + ": the output is the same file as the input"),
+            std::string::npos)
+      << self.err;
+  std::ifstream in(input);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), kTwoPresets);
 }
 
 TEST(OctorayTf, BadInputIsOneMessageAndExit1) {

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "cli_support.h"
+#include "octoray/core/atomic_file.h"
 #include "octoray/transfer/transfer_function_io.h"
 
 int main(int argc, char** argv) {
@@ -48,6 +49,7 @@ int main(int argc, char** argv) {
       }
       return 0;
     }
+    octoray::checkOutputIsNotAnInput(outputFile, {convertFile});
     const std::vector<tf::TransferFunction> functions = tf::loadTransferFunctions(convertFile);
     if (all) {
       tf::saveTransferFunctions(functions, outputFile);

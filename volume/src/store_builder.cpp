@@ -1,3 +1,4 @@
+#include "octoray/core/atomic_file.h"
 #include "octoray/volume/store_builder.h"
 
 #include <tbb/parallel_for.h>
@@ -515,6 +516,7 @@ BuildReport buildStore(VolumeSource& source, const std::string& outPath, const B
   if (info.sampleCount() <= 0) throw Error(info.sourcePath, "volume has no samples");
   // What the reader (and the validator) would refuse is refused before anything is written.
   checkGeometry(info.patientFromIndex, info.sourcePath);
+  checkOutputIsNotAnInput(outPath, info.sourceFiles);
   const ValueMapping mapping = chooseMapping(info, options.format);
   try {
     if (mapping.format == SampleFormat::UInt16) return buildWith<uint16_t>(source, outPath, options, mapping);

@@ -5,7 +5,9 @@
 // and the temporary is renamed over NAME.
 
 #include <filesystem>
+#include <string>
 #include <string_view>
+#include <vector>
 
 namespace octoray {
 
@@ -15,5 +17,12 @@ std::filesystem::path partialPathFor(const std::filesystem::path& path);
 // Writes `bytes` to `path` atomically (see above). Throws octoray::Error naming `path` when the
 // folder cannot be written or the disk is full; the temporary is removed then.
 void writeFileAtomically(const std::filesystem::path& path, std::string_view bytes);
+
+// Throws octoray::Error naming `output` when it is the same file as one of `inputs` (through
+// a link, a hard link or another spelling of its path): writing it would destroy what is being
+// read. Every writer calls it before it creates anything; an output that does not exist yet
+// passes.
+void checkOutputIsNotAnInput(const std::filesystem::path& output,
+                             const std::vector<std::string>& inputs);
 
 }  // namespace octoray
