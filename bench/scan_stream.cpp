@@ -20,6 +20,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "cli_checks.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/core/error.h"
@@ -199,10 +200,10 @@ int main(int argc, char** argv) {
   app.add_option("folder", folder, "DICOM folder to scan and stream")->capture_default_str();
   app.add_option("-n,--repeats", repeats, "runs of each phase")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(octoray::cli::kPositive);
   app.add_option("--slab", slabSlices, "slices per readSlab call")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(octoray::cli::kPositive);
   app.add_flag("--json", json, "print the results as JSON");
   CLI11_PARSE(app, argc, argv);
   try {

@@ -20,6 +20,7 @@
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 
+#include "cli_checks.h"
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/vdb.h"
@@ -31,7 +32,7 @@ int main(int argc, char** argv) {
   double threshold = -900;
   app.add_option("vdb", vdbPath, "the export")->required();
   app.add_option("volume", volumePath, "the volume it was exported from")->required();
-  app.add_option("--samples", samples, "voxels to check")->check(CLI::PositiveNumber);
+  app.add_option("--samples", samples, "voxels to check")->check(octoray::cli::kPositive);
   app.add_option("--threshold", threshold, "the export's --vdb-threshold (HU)");
   CLI11_PARSE(app, argc, argv);
   try {

@@ -56,6 +56,7 @@
 #include <string>
 #include <vector>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
@@ -83,17 +84,6 @@ struct Arguments {
 double millisecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
       .count();
-}
-
-// "512x384": two positive integers (as octoray-render).
-std::array<int, 2> parseSize(const std::string& text) {
-  int w = 0, h = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || x != 'x' || w < 1 ||
-      h < 1 || w > 16384 || h > 16384) {
-    throw Error("", fmt::format("--size \"{}\": expected WxH with sides in [1, 16384]", text));
-  }
-  return {w, h};
 }
 
 // The full-resolution volume exactly as octoray-render's reference path loads it.
@@ -351,7 +341,7 @@ int run(const Arguments& a) {
     camera = gpu::orbitCamera(domain, orbit);
   }
   if (a.camera.empty() || !a.size.empty()) {
-    const auto size = parseSize(a.size);
+    const auto size = cli::parseImageSize(a.size, "--size", 1, 1, 16384);  // as octoray-render
     camera.width = size[0];
     camera.height = size[1];
   }
@@ -472,7 +462,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.5, 8.0))
       ->capture_default_str();
   app.add_option("--step", a.stepMm, "sample distance in mm (default: half the smallest spacing)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(octoray::cli::kNonNegative);
   app.add_option("--shading", a.shading, "auto (the preset's material), on or off")
       ->check(CLI::IsMember({"auto", "on", "off"}))
       ->capture_default_str();

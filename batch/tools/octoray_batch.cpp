@@ -25,6 +25,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/batch/manifest.h"
 #include "octoray/batch/plan.h"
@@ -543,7 +544,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   plan->add_option("--id-salt", planArgs.idSalt, "Key of the patient-ID hash (keep it private)");
   plan->add_option("--modality", planArgs.modalities, "Only these modalities (repeatable), e.g. CT");
-  plan->add_option("--min-slices", planArgs.minSlices, "Only series with at least N slices")->check(CLI::NonNegativeNumber);
+  plan->add_option("--min-slices", planArgs.minSlices, "Only series with at least N slices")->check(octoray::cli::kNonNegative);
   plan->add_option("--study-date", planArgs.studyDate, "Only studies in FROM-TO (YYYYMMDD-YYYYMMDD; either may be empty)");
   plan->add_option("--description", planArgs.description, "Only series whose description matches this regex (case-insensitive)");
   plan->add_flag("--json", planArgs.json, "Machine-readable summary");
@@ -551,10 +552,10 @@ int main(int argc, char** argv) {
   RunArgs runArgs;
   auto* run = app.add_subcommand("run", "Build the plan's items (skips stores already built; resumable)");
   run->add_option("plan", runArgs.plan, "The plan")->required();
-  run->add_option("--jobs,-j", runArgs.jobs, "Parallel workers (default: from cores and memory)")->check(CLI::NonNegativeNumber);
+  run->add_option("--jobs,-j", runArgs.jobs, "Parallel workers (default: from cores and memory)")->check(octoray::cli::kNonNegative);
   run->add_option("--memory-budget", runArgs.memoryBudgetMiB, "Build memory budget per worker in MiB")
       ->check(CLI::Range(64, 1 << 20))->capture_default_str();
-  auto* index = run->add_option("--index", runArgs.selection.index, "Only item I")->check(CLI::NonNegativeNumber);
+  auto* index = run->add_option("--index", runArgs.selection.index, "Only item I")->check(octoray::cli::kNonNegative);
   auto* range = run->add_option("--range", runArgs.selection.range, "Only items A to B-1 (A:B)");
   auto* list = run->add_option("--items", runArgs.selection.items, "Only these items (I,J,K)");
   index->excludes(range)->excludes(list);
@@ -573,7 +574,7 @@ int main(int argc, char** argv) {
   bool validateJson = false;
   auto* validate = app.add_subcommand("validate", "Check every output store (octoray-validate's store checks)");
   validate->add_option("plan", validatePlan, "The plan")->required();
-  validate->add_option("--jobs,-j", validateJobs, "Stores checked at once (default: cores)")->check(CLI::NonNegativeNumber);
+  validate->add_option("--jobs,-j", validateJobs, "Stores checked at once (default: cores)")->check(octoray::cli::kNonNegative);
   validate->add_flag("--json", validateJson, "Machine-readable output");
 
   SlurmArgs slurmArgs;
@@ -583,11 +584,11 @@ int main(int argc, char** argv) {
   slurm->add_option("--time", slurmArgs.options.timeLimit, "Time limit per array task")->capture_default_str();
   slurm->add_option("--mem", slurmArgs.options.memory, "Memory per array task (default: budget + overhead)");
   slurm->add_option("--cpus-per-task", slurmArgs.options.cpusPerTask, "CPUs per array task")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+      ->check(octoray::cli::kPositive)->capture_default_str();
   slurm->add_option("--array-parallel", slurmArgs.options.arrayParallel, "At most K array tasks at once")
-      ->check(CLI::NonNegativeNumber);
+      ->check(octoray::cli::kNonNegative);
   slurm->add_option("--min-task-seconds", slurmArgs.options.minTaskSeconds, "Estimated work per array task")
-      ->check(CLI::NonNegativeNumber)->capture_default_str();
+      ->check(octoray::cli::kNonNegative)->capture_default_str();
   slurm->add_option("--memory-budget", slurmArgs.memoryBudgetMiB, "Build memory budget per task in MiB")
       ->check(CLI::Range(64, 1 << 20))->capture_default_str();
   slurm->add_option("--job-name", slurmArgs.options.jobName, "Slurm job name")->capture_default_str();

@@ -39,6 +39,7 @@
 #include <string>
 #include <vector>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/core/atomic_file.h"
 #include "octoray/core/error.h"
@@ -60,15 +61,9 @@
 
 namespace octoray::render_tool {
 
-// "512x384": two positive integers.
+// "512x384".
 std::array<int, 2> parseSize(const std::string& text) {
-  int w = 0, h = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || x != 'x' || w < 1 ||
-      h < 1 || w > 16384 || h > 16384) {
-    throw Error("", fmt::format("--size \"{}\": expected WxH with sides in [1, 16384]", text));
-  }
-  return {w, h};
+  return cli::parseImageSize(text, "--size", 1, 1, 16384);
 }
 
 // The PNG and the EXR together: both or neither (gpu::writeImageOutputs).
@@ -693,7 +688,7 @@ int main(int argc, char** argv) {
   app.add_option("--silhouette", a.silhouette,
                  "GPU: view-dependent transparency KC,KS,KE");
   app.add_option("--threads", a.threads, "worker threads (0: all cores)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(octoray::cli::kNonNegative);
   app.add_flag("--frustum-cut", a.frustumCut,
                "reference, store: read only the leaf bricks in the camera's view (the truth of a "
                "zoomed view of a store too large for memory; the same picture)");
@@ -708,7 +703,7 @@ int main(int argc, char** argv) {
                  "with --cut-reference: render it as the cut's own truth, at this step in mm and "
                  "without early termination, so the GPU picture's error on its cut (classification, "
                  "step) is told apart from what the cut's coarse levels lose")
-      ->check(CLI::PositiveNumber);
+      ->check(octoray::cli::kPositive);
   app.add_flag("--json", a.json, "print timing (ms), image size, samples and the camera as JSON");
   try {
     app.parse(argc, argv);

@@ -128,6 +128,19 @@ TEST_F(RenderTools, ModesAndErrors) {
   EXPECT_EQ(overTf.exitCode, 1);
   EXPECT_NE(overTf.err.find("the output is the same file as the input"), std::string::npos) << overTf.err;
   EXPECT_EQ(slurp(tf), tfBytes);
+  // Sizes that do not fit an int are refused, not wrapped (4294967328 read as 32).
+  for (const char* size : {"4294967328x4294967328", "4294967297x1", "16x16x", "x16", "16x-16", "0x16"}) {
+    const ProcessResult r = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--size", size});
+    EXPECT_EQ(r.exitCode, 1) << size;
+    EXPECT_NE(r.err.find(std::string("--size \"") + size + "\": expected WxH, from 1x1 to 16384x16384"),
+              std::string::npos)
+        << r.err;
+  }
+  // A negative count is a usage error in words (CLI11's own check printed DBL_MAX in full).
+  const ProcessResult threads = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--threads", "-1"});
+  EXPECT_EQ(threads.exitCode, 2);
+  EXPECT_NE(threads.err.find("--threads: must be 0 or a number above it, not -1"), std::string::npos) << threads.err;
+  EXPECT_EQ(threads.err.find("1797693"), std::string::npos) << threads.err;
   // A field of view of 0: named as such (it said "camera: non-finite vector").
   const ProcessResult fov = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--fov", "0"});
   EXPECT_EQ(fov.exitCode, 1);

@@ -8,7 +8,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
-#include <cstdio>
+#include <array>
 #include <iostream>
 #include <memory>
 
@@ -47,9 +47,9 @@ int main(int argc, char** argv) {
   CLI11_PARSE(cli, argc, argv);
   const octoray::cli::WorkerThreadsJoinedAtExit joinedAtExit;
   try {
-    if (std::sscanf(size.c_str(), "%dx%d", &o.width, &o.height) != 2 || o.width < 320 || o.height < 240) {
-      throw Error("", fmt::format("--size \"{}\": expected WxH, at least 320x240", size));
-    }
+    const std::array<int, 2> window = octoray::cli::parseImageSize(size, "--size", 320, 240, 16384);
+    o.width = window[0];
+    o.height = window[1];
     o.cacheDir = cacheDir;
     std::unique_ptr<viewer::App> made;
     try {

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/core/error.h"
 #include "octoray/volume/phantom.h"
@@ -52,7 +53,7 @@ int main(int argc, char** argv) {
   app.add_flag("--hard-edges", hardEdges, "the old hard-edged phantom (same as --psf-sigma 0)")
       ->excludes(psf);
   app.add_option("--threads", threads, "worker threads (0: all cores)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(octoray::cli::kNonNegative);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/volume/store_reader.h"
 #include "octoray/volume/store_validator.h"
@@ -119,7 +120,7 @@ int main(int argc, char** argv) {
   app.add_flag("--json", json, "print the report as JSON (docs/validate-json.md)");
   app.add_option("--cache-mib", cacheMiB, "decompressed bricks kept in memory (MiB)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(octoray::cli::kPositive);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -134,6 +135,26 @@ std::array<int64_t, 3> parseDims(const std::string& text, const char* option) {
 
 std::array<double, 3> parseTriple(const std::string& text, const char* option) {
   return parseThree(text, ',', option);
+}
+
+std::array<int, 2> parseImageSize(const std::string& text, const char* option, int minWidth,
+                                  int minHeight, int largest) {
+  const std::size_t x = text.find('x');
+  std::array<int, 2> size{};
+  const std::array<std::string, 2> parts = {text.substr(0, x),
+                                            x == std::string::npos ? "" : text.substr(x + 1)};
+  const std::array<int, 2> least = {minWidth, minHeight};
+  for (std::size_t n = 0; n < 2; ++n) {
+    const char* first = parts[n].data();
+    const char* last = first + parts[n].size();
+    const auto [stop, error] = std::from_chars(first, last, size[n]);
+    if (parts[n].empty() || error != std::errc() || stop != last || size[n] < least[n] ||
+        size[n] > largest) {
+      throw Error("", fmt::format("{} \"{}\": expected WxH, from {}x{} to {}x{}", option, text,
+                                  minWidth, minHeight, largest, largest));
+    }
+  }
+  return size;
 }
 
 ProgressBar::ProgressBar(std::string label)

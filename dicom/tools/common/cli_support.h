@@ -39,6 +39,11 @@ class WorkerThreadsJoinedAtExit {
 std::array<int64_t, 3> parseDims(const std::string& text, const char* option);
 // "0.5,0.5,1.25": three positive finite numbers separated by ','.
 std::array<double, 3> parseTriple(const std::string& text, const char* option);
+// "512x384": an image's width and height, whole numbers from minWidth and minHeight up to
+// `largest`. Throws octoray::Error naming `option` otherwise (numbers too large for an int
+// included: they do not wrap).
+std::array<int, 2> parseImageSize(const std::string& text, const char* option, int minWidth,
+                                  int minHeight, int largest);
 
 // The timing loops' median: of the frames after the first (which uploads data and compiles
 // shaders), or of the only frame; and the words that say which. NaN for no frames.
