@@ -101,6 +101,12 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
     const auto stored = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0101));
     const auto high = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0102));
     const auto representation = detail::unsignedShort(file, ds, gdcm::Tag(0x0028, 0x0103));
+    // BitsStored above BitsAllocated cannot be: the header misdescribes the pixel data (GDCM
+    // would go on with its own idea of the bits and decode garbage).
+    if (stored && *stored > f.bitsAllocated) {
+      throw Error(path, fmt::format("BitsStored {} exceeds BitsAllocated {}", *stored,
+                                    f.bitsAllocated));
+    }
     if (stored && high && *stored >= 1 && *stored <= f.bitsAllocated && *high < f.bitsAllocated &&
         *high >= *stored - 1) {
       f.bitsStored = *stored;
@@ -172,6 +178,17 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
       native && native->GetLength() < expected) {
     throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
                                   "at {} bits need {}",
+                                  native->GetLength(), f.rows, f.columns, f.frames, f.bitsAllocated,
+                                  expected));
+  }
+  // Native bytes for twice the image or more: the header's sizes or bits do not describe the
+  // data (16-bit samples under BitsAllocated 8, say), and its first half read as the image
+  // would be a picture of garbage. Less excess is trailing padding, which some writers leave
+  // (pydicom's MR_small_padded.dcm: 128 bytes) and readers drop, as here.
+  if (const gdcm::ByteValue* native = pixelData.GetByteValue();
+      native && expected > 0 && native->GetLength() / 2 >= expected) {
+    throw Error(path, fmt::format("pixel data holds {} bytes, {} rows x {} columns x {} frames "
+                                  "at {} bits fill {}: the header does not describe the data",
                                   native->GetLength(), f.rows, f.columns, f.frames, f.bitsAllocated,
                                   expected));
   }

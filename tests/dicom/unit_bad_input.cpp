@@ -403,6 +403,25 @@ TEST(BadInputDicom, ImageSplitOffFromTheSeriesIsNamed) {
   EXPECT_NE(warnings[0].find("differ in orientation"), std::string::npos) << warnings[0];
 }
 
+// 16-bit pixel data under BitsAllocated 8: decoded as 8-bit samples it would be a slice of
+// garbage. BitsStored above BitsAllocated says so; where BitsStored and HighBit are made
+// consistent too, the pixel data's length (twice what 8 bits fill) still does.
+TEST(BadInputDicom, BitsAllocatedThatDoesNotDescribeThePixelDataIsRefused) {
+  const auto dir = test::freshTempDir("bad_dicom_bits");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 3;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const fs::path damaged = written.slices()[1].path;
+  rewriteElement(damaged, gdcm::Tag(0x0028, 0x0100), gdcm::VR::US, le16(8));
+  expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); },
+                   {damaged.string(), "exceeds BitsAllocated 8"}, "decodeDicomFile");
+  rewriteElement(damaged, gdcm::Tag(0x0028, 0x0101), gdcm::VR::US, le16(8));
+  rewriteElement(damaged, gdcm::Tag(0x0028, 0x0102), gdcm::VR::US, le16(7));
+  expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); },
+                   {damaged.string(), "the header does not describe the data"}, "decodeDicomFile");
+  EXPECT_NO_THROW(dicom::decodeDicomFile(written.slices()[0].path.string()));
+}
+
 // RescaleSlope 0 turns every pixel into the intercept, NaN every pixel into NaN: the file is
 // refused by name (and the volume built without it says a slice is missing), never read as a
 // silently flat or NaN slice.
