@@ -272,16 +272,34 @@ std::unique_ptr<VolumeSource> openNifti(const std::string& path) {
   layout.bigEndian = reader->GetDataByteOrder() == VTK_FILE_BYTE_ORDER_BIG_ENDIAN;
   layout.dataPath = niftiDataPath(path, header->GetMagic());
   const auto voxOffset = header->GetVoxOffset();
-  if (voxOffset < 0) throw Error(path, fmt::format("invalid vox_offset {}", voxOffset));
+  // VTK reads a NaN vox_offset as the smallest int64.
+  if (voxOffset < 0) throw Error(path, "invalid vox_offset (negative or not a number)");
+  // In a one-file .nii the samples follow the header and its 4-byte extension flag.
+  const std::string magic = header->GetMagic();
+  const int64_t firstSampleByte = magic == "n+1" ? 352 : magic == "n+2" ? 544 : 0;
+  if (voxOffset < firstSampleByte) {
+    throw Error(path, fmt::format("vox_offset {} points into the header: the samples of a .nii "
+                                  "file start at byte {} or later",
+                                  voxOffset, firstSampleByte));
+  }
   if (startsWithGzipMagic(layout.dataPath)) {
     layout.compression = detail::Compression::Deflate;
     layout.streamOffsetBytes = static_cast<uint64_t>(voxOffset);
   } else {
     layout.fileOffsetBytes = static_cast<uint64_t>(voxOffset);
   }
-  // scl_slope = 0 means "no scaling" (NIfTI-1 standard).
-  const double slope = header->GetSclSlope(), intercept = header->GetSclInter();
-  if (slope != 0 && std::isfinite(slope) && std::isfinite(intercept)) {
+  // scl_slope = 0 means "no scaling" (NIfTI-1 standard). A field that is not a finite number
+  // counts as 0, as nifti1_io reads it, and the warning says so.
+  double slope = header->GetSclSlope(), intercept = header->GetSclInter();
+  if (!std::isfinite(slope)) {
+    info.warnings.push_back(fmt::format("scl_slope is {}: the samples are read unscaled", slope));
+    slope = 0;
+  }
+  if (slope != 0 && !std::isfinite(intercept)) {
+    info.warnings.push_back(fmt::format("scl_inter is {}: read as 0", intercept));
+    intercept = 0;
+  }
+  if (slope != 0) {
     layout.valueScale = slope;
     layout.valueOffset = intercept;
   }

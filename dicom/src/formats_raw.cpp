@@ -369,6 +369,12 @@ class RawSource final : public VolumeSource {
                   fmt::format("expected {} bytes of data after a {}-byte header, file has {}",
                               totalBytes_, headerBytes, fileBytes));
     }
+    if (fileBytes - headerBytes > totalBytes_) {
+      info_.warnings.push_back(fmt::format(
+          "{} holds {} bytes of data, the volume needs {}: the rest is ignored (are the "
+          "dimensions and the sample type right?)",
+          layout_.dataPath, fileBytes - headerBytes, totalBytes_));
+    }
     file_.open(layout_.dataPath, std::ios::binary);
     if (!file_) throw Error(layout_.dataPath, "cannot open the file for reading");
   }

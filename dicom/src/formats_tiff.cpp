@@ -7,6 +7,9 @@
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
+#include <limits>
+#include <string>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -50,6 +53,46 @@ bool naturalLess(const std::string& a, const std::string& b) {
   }
   if (a.size() - i != b.size() - j) return a.size() - i < b.size() - j;
   return a < b;  // equal up to case and leading zeros: any fixed order
+}
+
+// Where the file numbers of a stack named alike ("s000.tif" ... "s007.tif") skip a value the
+// others keep to: a slice file is likely missing, and the stack would close the gap silently.
+// One warning per jump (the first few); nothing when the names do not follow one pattern.
+std::vector<std::string> numberingGaps(const std::vector<std::string>& names) {
+  struct Numbered {
+    std::string prefix, suffix;
+    uint64_t number = 0;
+  };
+  std::vector<Numbered> numbered;
+  for (const std::string& name : names) {
+    const std::size_t last = name.find_last_of("0123456789");
+    if (last == std::string::npos) return {};
+    std::size_t first = last;
+    while (first > 0 && std::isdigit(static_cast<unsigned char>(name[first - 1]))) --first;
+    if (last - first + 1 > 18) return {};
+    Numbered n{name.substr(0, first), name.substr(last + 1),
+               std::stoull(name.substr(first, last - first + 1))};
+    const bool other = !numbered.empty() && (n.prefix != numbered.front().prefix ||
+                                             n.suffix != numbered.front().suffix);
+    if (other) return {};
+    numbered.push_back(std::move(n));
+  }
+  if (numbered.size() < 3) return {};
+  uint64_t step = std::numeric_limits<uint64_t>::max();
+  for (std::size_t i = 1; i < numbered.size(); ++i) {
+    if (numbered[i].number <= numbered[i - 1].number) return {};
+    step = std::min(step, numbered[i].number - numbered[i - 1].number);
+  }
+  std::vector<std::string> warnings;
+  for (std::size_t i = 1; i < numbered.size() && warnings.size() < 3; ++i) {
+    if (numbered[i].number - numbered[i - 1].number != step) {
+      warnings.push_back(fmt::format("the file numbers jump from {} to {} ({} to {}): a slice file "
+                                     "may be missing, and the stack closes the gap",
+                                     numbered[i - 1].number, numbered[i].number, names[i - 1],
+                                     names[i]));
+    }
+  }
+  return warnings;
 }
 
 // Checks one decoded page; `what` names the file (and page) in messages.
@@ -106,6 +149,9 @@ class TiffSource final : public VolumeSource {
   }
 
   const VolumeInfo& info() const override { return info_; }
+  void addWarnings(const std::vector<std::string>& warnings) {
+    info_.warnings.insert(info_.warnings.end(), warnings.begin(), warnings.end());
+  }
 
   void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) override {
     checkSlabRequest(info_, firstSlice, sliceCount, out.size());
@@ -172,7 +218,9 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
     std::sort(names.begin(), names.end(), naturalLess);
     std::vector<std::string> files;
     for (const auto& name : names) files.push_back((fs::path(path) / name).string());
-    return std::make_unique<TiffSource>(path, std::move(files), 1, spacingMm);
+    auto source = std::make_unique<TiffSource>(path, std::move(files), 1, spacingMm);
+    source->addWarnings(numberingGaps(names));
+    return source;
   }
   if (!fs::is_regular_file(path, ec)) throw Error(path, "not a readable file or folder");
   std::size_t pages = 0;

@@ -92,6 +92,23 @@ TEST(RawVolume, ReadsSlabsInAnyOrder) {
   }
 }
 
+// More data than the dimensions and type need: read, but said (a wrong --raw-type or a slice
+// count too small would otherwise pass unnoticed); exactly enough says nothing.
+TEST(RawVolume, DataBeyondTheVolumeIsAWarning) {
+  const auto dir = test::freshTempDir("raw_longer");
+  const std::array<int64_t, 3> dims{5, 4, 9};
+  writeFile(dir / "v.raw", encode<int16_t>(dims, false));
+  RawOptions options;
+  options.dims = dims;
+  EXPECT_TRUE(openRawVolume((dir / "v.raw").string(), options)->info().warnings.empty());
+  options.sampleType = SampleType::UInt8;
+  auto bytes = openRawVolume((dir / "v.raw").string(), options);
+  ASSERT_EQ(bytes->info().warnings.size(), 1u);
+  EXPECT_EQ(bytes->info().warnings[0],
+            (dir / "v.raw").string() + " holds 360 bytes of data, the volume needs 180: the rest is "
+                                       "ignored (are the dimensions and the sample type right?)");
+}
+
 TEST(RawVolume, TruncatedFileNamesFileAndSizes) {
   const auto dir = test::freshTempDir("raw_truncated");
   const auto file = dir / "short.raw";

@@ -11,7 +11,9 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include <algorithm>
 #include <filesystem>
+#include <limits>
 #include <random>
 
 #include <fmt/format.h>
@@ -206,6 +208,23 @@ TEST(NiftiFormat, QformOnlyFileWithFlippedSlicesAndScaling) {
                [](int64_t i, int64_t j, int64_t k) { return 2.0f * integerRamp(i, j, k) - 1.0f; });
   patchHeader<float>(file, 112, 0.5f);
   EXPECT_FALSE(openNifti(file.string())->info().integerValues);
+
+  // A field that is not a number counts as 0, as nifti1_io reads it, with a warning: the
+  // intercept alone leaves the slope in force, a NaN slope leaves the samples unscaled.
+  const auto warned = [](const VolumeSource& v, const std::string& what) {
+    return std::any_of(v.info().warnings.begin(), v.info().warnings.end(),
+                       [&](const std::string& w) { return w.find(what) != std::string::npos; });
+  };
+  patchHeader<float>(file, 112, 2.0f);
+  patchHeader<float>(file, 116, std::numeric_limits<float>::quiet_NaN());
+  auto noIntercept = openNifti(file.string());
+  EXPECT_TRUE(warned(*noIntercept, "scl_inter is nan: read as 0"));
+  expectValues(*noIntercept, 7,
+               [](int64_t i, int64_t j, int64_t k) { return 2.0f * integerRamp(i, j, k); });
+  patchHeader<float>(file, 112, std::numeric_limits<float>::infinity());
+  auto noSlope = openNifti(file.string());
+  EXPECT_TRUE(warned(*noSlope, "scl_slope is inf: the samples are read unscaled"));
+  expectValues(*noSlope, 7, [](int64_t i, int64_t j, int64_t k) { return integerRamp(i, j, k); });
 }
 
 TEST(NiftiFormat, TruncatedAndJunkFilesThrow) {
@@ -231,6 +250,14 @@ TEST(NiftiFormat, TruncatedAndJunkFilesThrow) {
   EXPECT_THROW(openNifti((dir / "junk.nii").string()), Error);
   writeFile(dir / "empty.nii.gz", "");
   EXPECT_THROW(openNifti((dir / "empty.nii.gz").string()), Error);
+  // vox_offset inside the header: header bytes would be read as samples.
+  fs::copy_file(dir / "full.nii", dir / "offset.nii");
+  patchHeader<float>(dir / "offset.nii", 108, 100.0f);
+  expectErrorMentioning([&] { openNifti((dir / "offset.nii").string()); },
+                        "vox_offset 100 points into the header");
+  patchHeader<float>(dir / "offset.nii", 108, std::numeric_limits<float>::quiet_NaN());
+  expectErrorMentioning([&] { openNifti((dir / "offset.nii").string()); },
+                        "invalid vox_offset (negative or not a number)");
   patchHeader<int16_t>(dir / "full.nii", 70, 1792);  // complex128: not a scalar type
   EXPECT_THROW(openNifti((dir / "full.nii").string()), Error);
 }
@@ -258,6 +285,25 @@ TEST(TiffStack, FolderOfPagesInNaturalNameOrder) {
   expectValues(*source, 2, [](int64_t i, int64_t j, int64_t k) {
     return static_cast<float>(typedValue<uint16_t>(i, j, k));
   });
+}
+
+// A stack whose file numbers skip one is read, and the jump is said: a slice file is likely
+// missing. Complete numbering, or a constant step other than 1, says nothing.
+TEST(TiffStack, GapInTheFileNumbersIsAWarning) {
+  const auto stack = [](const std::string& name, const std::vector<int>& numbers) {
+    const auto dir = test::freshTempDir(name);
+    for (int n : numbers) {
+      EXPECT_TRUE(cv::imwrite((dir / fmt::format("s{:03d}.tif", n)).string(), page16(8, 8, n)));
+    }
+    return openTiffStack(dir.string(), {1, 1, 1});
+  };
+  const auto gap = stack("tiff_gap", {0, 1, 2, 3, 4, 6, 7});
+  EXPECT_EQ(gap->info().dims[2], 7);
+  ASSERT_EQ(gap->info().warnings.size(), 1u);
+  EXPECT_EQ(gap->info().warnings[0], "the file numbers jump from 4 to 6 (s004.tif to s006.tif): a "
+                                     "slice file may be missing, and the stack closes the gap");
+  EXPECT_TRUE(stack("tiff_whole", {0, 1, 2, 3, 4})->info().warnings.empty());
+  EXPECT_TRUE(stack("tiff_step2", {10, 12, 14, 16})->info().warnings.empty());
 }
 
 TEST(TiffStack, MultiPageFloatFile) {
