@@ -181,10 +181,14 @@ StackGeometry resolveStack(const DicomSeries& series, const StackOptions& option
                 span, slices, maxSlices, kMaxResampledSlicesPerImage, kMaxResampledSlicesAlways));
       }
       g.outputSlices = static_cast<int64_t>(slices);
-      g.warnings.push_back(fmt::format(
-          "slice spacing varies from {:.3f} to {:.3f} mm (median {:.3f}); resampled to {} slices "
-          "{:.4f} mm apart by linear interpolation along the stack", g.minGapMm, g.maxGapMm,
-          g.medianGapMm, g.outputSlices, g.outputSpacingMm));
+      const std::string spacing =
+          (g.maxGapMm - g.minGapMm) <= gapTolerance
+              ? fmt::format("the slices are {:.3f} mm apart; --slice-spacing", g.medianGapMm)
+              : fmt::format("slice spacing varies from {:.3f} to {:.3f} mm (median {:.3f})",
+                            g.minGapMm, g.maxGapMm, g.medianGapMm);
+      g.warnings.push_back(fmt::format("{}; resampled to {} slices {:.4f} mm apart by linear "
+                                       "interpolation along the stack",
+                                       spacing, g.outputSlices, g.outputSpacingMm));
     }
     g.sliceStepMm = g.outputSpacingMm * (normal + shearPerMm);
   }

@@ -232,6 +232,8 @@ void writeImageOutputs(const Image& image, const ImageOutputs& outputs) {
 }
 
 Image readImage(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) throw Error(path.string(), "is a folder, not an image file");
   std::array<unsigned char, 8> magic{};
   {
     std::ifstream in(path, std::ios::binary);

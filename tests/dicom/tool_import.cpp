@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -350,6 +351,30 @@ TEST(ToolImportBadInput, OutputThatIsAnInputIsRefused) {
   const std::string niiBytes = bytesOf(nii);
   expectInputError(runImport({"--export", nii, nii}), nii + ": the output is the same file as the input");
   EXPECT_EQ(bytesOf(nii), niiBytes);
+
+  // A store given as the input is named as one (it was "no volumetric image series found").
+  const std::string store = (dir / "v.octoray").string();
+  ASSERT_EQ(runImport({header, "-o", store}).exitCode, 0);
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"--inspect", store}, {store, "-o", (dir / "again.octoray").string()}}) {
+    expectInputError(runImport(args), store + ": is an octoray store already");
+  }
+}
+
+// --inspect's text names samples that are not numbers (its JSON always did): the value range
+// it prints leaves them out.
+TEST(ToolImportBadInput, InspectTextCountsNonFiniteSamples) {
+  const fs::path dir = test::freshTempDir("nonfinite");
+  std::vector<float> samples(4 * 4 * 2, 1.0f);
+  samples[5] = std::numeric_limits<float>::quiet_NaN();
+  samples[20] = std::numeric_limits<float>::infinity();
+  std::ofstream(dir / "v.nrrd", std::ios::binary)
+      << "NRRD0004\ntype: float\ndimension: 3\nsizes: 4 4 2\nencoding: raw\nendian: little\n\n"
+      << std::string(reinterpret_cast<const char*>(samples.data()), samples.size() * sizeof(float));
+  const ProcessResult r = runImport({"--inspect", (dir / "v.nrrd").string()});
+  EXPECT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_NE(r.out.find("values       1 .. 1"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("not finite   2 samples"), std::string::npos) << r.out;
 }
 
 TEST(ToolImportBadInput, EmptyFolder) {
@@ -413,6 +438,10 @@ TEST(ToolImportBadInput, ConflictingFlagsAreUsageErrors) {
   expectUsageError(runImport({dir.string()}), "choose one of");
   expectUsageError(runImport({"--list"}), "path");
   expectUsageError(runImport({dir.string(), "-o", store, "--brick-size", "17"}), "17");
+  expectUsageError(runImport({dir.string(), "-o", store, "--slice-spacing", "0"}),
+                   "--slice-spacing: must be a number above 0, not 0");
+  expectUsageError(runImport({dir.string(), "-o", store, "--raw-header-bytes", "-5"}),
+                   "--raw-header-bytes: must be 0 or a number above it, not -5");
   expectOnly(outDir, {});
 }
 

@@ -324,6 +324,24 @@ TEST(StackSynthetic, VariableGapsWithSpacingOverride) {
   checkWrittenPixels(spec, written, loaded, resampledToleranceHu(spec, 1.5, 0.75));
 }
 
+// Evenly spaced slices resampled because --slice-spacing asked for it: the warning says so,
+// not that the spacing "varies from 2.000 to 2.000 mm".
+TEST(StackSynthetic, EvenSlicesWithSpacingOverrideSayWhy) {
+  SyntheticSeriesSpec spec;
+  spec.sliceCount = 4;
+  spec.sliceSpacingMm = 2;
+  const auto dir = test::freshTempDir("series");
+  writeSyntheticSeries(dir, spec);
+  StackOptions options;
+  options.sliceSpacingMm = 1;
+  const LoadedStack loaded = load(dir, options);
+  EXPECT_TRUE(loaded.info.resampled);
+  EXPECT_EQ(loaded.info.dims[2], 7);
+  EXPECT_TRUE(hasWarning(loaded.info.warnings, "the slices are 2.000 mm apart; --slice-spacing; "
+                                               "resampled to 7 slices 1.0000 mm apart"));
+  EXPECT_FALSE(hasWarning(loaded.info.warnings, "varies"));
+}
+
 TEST(StackSynthetic, SignedUnsignedAndNonIntegerRescale) {
   struct Case {
     const char* name;

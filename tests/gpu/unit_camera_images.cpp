@@ -146,6 +146,12 @@ TEST(ImageIo, PngRoundTripWithinOneLevel) {
   std::ofstream(dir / "junk.png") << "not an image at all";
   EXPECT_THROW(readImage(dir / "junk.png"), Error);
   EXPECT_THROW(readImage(dir / "missing.exr"), Error);
+  try {
+    readImage(dir);
+    ADD_FAILURE() << "a folder was read as an image";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), dir.string() + ": is a folder, not an image file");
+  }
 }
 
 // The PNG and the EXR of a command are written together or not at all; temporaries are

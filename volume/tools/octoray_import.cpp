@@ -24,6 +24,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_checks.h"
 #include "cli_support.h"
 #include "octoray/dicom/dicom_series.h"
 #include "octoray/dicom/dicom_volume.h"
@@ -36,6 +37,7 @@
 #include "octoray/pacs/connection.h"
 #include "octoray/pacs/dicomweb.h"
 #include "octoray/volume/store_builder.h"
+#include "octoray/volume/store_reader.h"
 
 namespace {
 
@@ -316,6 +318,10 @@ void printInspect(const json& j) {
     fmt::print("values       {} .. {} {}\n", j["valueRange"]["min"].get<double>(),
                j["valueRange"]["max"].get<double>(), j["unit"].get<std::string>());
   }
+  if (const auto nonFinite = j["nonFiniteSamples"].get<int64_t>(); nonFinite > 0) {
+    fmt::print("not finite   {} samples (NaN or infinite: a store cannot be built from them)\n",
+               nonFinite);
+  }
   for (const auto& w : j["windows"]) {
     fmt::print("window       W {} / L {}{}{}\n", w["width"].get<double>(), w["center"].get<double>(),
                w["explanation"].get<std::string>().empty() ? "" : " (" + w["explanation"].get<std::string>() + ")",
@@ -466,6 +472,10 @@ void retrieveUrlInput(Arguments& a) {
 
 int run(Arguments a) {
   retrieveUrlInput(a);
+  if (volume::isStoreFile(a.path)) {
+    throw Error(a.path, "is an octoray store already: octoray-view and octoray-render open it, "
+                        "octoray-validate checks it");
+  }
   if (a.list) {
     cli::ProgressBar bar("scanning");
     dicom::ScanOptions options;
@@ -531,12 +541,13 @@ int main(int argc, char** argv) {
   app.add_option("--series", a.series, "Series table index or SeriesInstanceUID");
   app.add_option("--slice-spacing", a.sliceSpacingMm,
                  "Output slice spacing in mm where slices must be resampled (default: smallest gap)")
-      ->check(CLI::PositiveNumber);
+      ->check(octoray::cli::kPositive);
   app.add_option("--raw-dims", a.rawDims, "Raw volume: dimensions XxYxZ");
   app.add_option("--raw-type", a.rawType, "Raw volume: sample type (uint8 int16 float32 ...)");
   app.add_flag("--raw-big-endian", a.rawBigEndian, "Raw volume: big-endian samples");
   app.add_option("--raw-spacing", a.rawSpacing, "Raw volume: spacing in mm, x,y,z");
-  app.add_option("--raw-header-bytes", a.rawHeaderBytes, "Raw volume: bytes before the data");
+  app.add_option("--raw-header-bytes", a.rawHeaderBytes, "Raw volume: bytes before the data")
+      ->check(octoray::cli::kNonNegative);
   app.add_option("--tiff-spacing", a.tiffSpacing, "TIFF stack: spacing in mm, x,y,z");
   app.add_option("--credentials", a.credentialsFile,
                  "PATH a DICOMweb URL: file holding \"basic USER:PASSWORD\" or \"bearer TOKEN\" "
