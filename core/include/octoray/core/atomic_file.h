@@ -20,8 +20,8 @@ void writeFileAtomically(const std::filesystem::path& path, std::string_view byt
 
 // Throws octoray::Error naming `output` when it is the same file as one of `inputs` (through
 // a link, a hard link or another spelling of its path): writing it would destroy what is being
-// read. Every writer calls it before it creates anything; an output that does not exist yet
-// passes.
+// read. The store builder, the NIfTI and VDB exports, octoray-render and octoray-tf call it
+// before they create anything; an output that does not exist yet passes.
 void checkOutputIsNotAnInput(const std::filesystem::path& output,
                              const std::vector<std::string>& inputs);
 
