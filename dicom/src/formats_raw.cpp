@@ -252,18 +252,12 @@ class InflateReader {
   void checkTrailer() {
     std::vector<unsigned char> scratch(1 << 16);
     while (!memberEnded_) {
-      if (stream_.avail_in == 0 && !refill()) {
-        throw Error(path_, "compressed data ends before its checksum (the file is truncated)");
-      }
       stream_.next_out = scratch.data();
       stream_.avail_out = static_cast<uInt>(scratch.size());
-      const int rc = inflate(&stream_, Z_NO_FLUSH);
-      position_ += scratch.size() - stream_.avail_out;
-      if (rc == Z_STREAM_END) {
-        memberEnded_ = true;
-      } else if (rc != Z_OK && !(rc == Z_BUF_ERROR && stream_.avail_in == 0)) {
-        throw corrupt(rc);
+      if (!inflateStep()) {
+        throw Error(path_, "compressed data ends before its checksum (the file is truncated)");
       }
+      position_ += scratch.size() - stream_.avail_out;
     }
   }
 
@@ -296,22 +290,29 @@ class InflateReader {
     stream_.next_out = dst;
     stream_.avail_out = static_cast<uInt>(n);
     while (stream_.avail_out > 0) {
-      if (stream_.avail_in == 0 && !refill()) break;  // end of file: the caller reports it
       if (memberEnded_) {
         // gzip allows several members back to back; more data is wanted, so go on.
         inflateReset(&stream_);
         memberEnded_ = false;
       }
-      const int rc = inflate(&stream_, Z_NO_FLUSH);
-      if (rc == Z_STREAM_END) {
-        memberEnded_ = true;
-      } else if (rc != Z_OK && !(rc == Z_BUF_ERROR && stream_.avail_in == 0)) {
-        throw corrupt(rc);
-      }
+      if (!inflateStep()) break;  // end of file: the caller reports it
     }
     const std::size_t produced = n - stream_.avail_out;
     position_ += produced;
     return produced;
+  }
+
+  // One call of inflate into the output window stream_ points at, refilling its input first if
+  // it is empty; false when the file has no more input. Throws if the data is corrupt.
+  bool inflateStep() {
+    if (stream_.avail_in == 0 && !refill()) return false;
+    const int rc = inflate(&stream_, Z_NO_FLUSH);
+    if (rc == Z_STREAM_END) {
+      memberEnded_ = true;
+    } else if (rc != Z_OK && !(rc == Z_BUF_ERROR && stream_.avail_in == 0)) {
+      throw corrupt(rc);
+    }
+    return true;
   }
 
   std::string path_;
