@@ -442,7 +442,31 @@ TEST(ToolImportBadInput, ConflictingFlagsAreUsageErrors) {
                    "--slice-spacing: must be a number above 0, not 0");
   expectUsageError(runImport({dir.string(), "-o", store, "--raw-header-bytes", "-5"}),
                    "--raw-header-bytes: must be 0 or a number above it, not -5");
+  // Not a number as a whole, or not finite: the same check, the same words.
+  for (const char* bad : {"2mm", "inf", "nan", ""}) {
+    expectUsageError(runImport({dir.string(), "-o", store, "--slice-spacing", bad}),
+                     std::string("--slice-spacing: must be a number above 0, not ") + bad);
+  }
   expectOnly(outDir, {});
+}
+
+TEST(ToolImportBadInput, SpacingThatIsNotThreePositiveNumbersIsRefused) {
+  const fs::path outDir = test::freshTempDir("out");
+  const fs::path raw = outDir / "zeros.raw";
+  std::ofstream(raw, std::ios::binary) << std::string(128, '\0');
+  const std::string store = (outDir / "x.octoray").string();
+  const auto importWithSpacing = [&](const std::string& spacing) {
+    return runImport({raw.string(), "--raw-dims", "4x4x4", "--raw-type", "int16", "--raw-spacing",
+                      spacing, "-o", store});
+  };
+  expectInputError(importWithSpacing("1,nan,1"),
+                   "--raw-spacing \"1,nan,1\": \"nan\" is not a positive number");
+  expectInputError(importWithSpacing("1,1e999,1"), "\"1e999\" is not a positive number");
+  expectInputError(importWithSpacing("1,0.5mm,1"), "\"0.5mm\" is not a positive number");
+  expectInputError(importWithSpacing("1,,1"), "\"\" is not a positive number");
+  expectInputError(importWithSpacing("1,-2,1"), "\"-2\" is not a positive number");
+  expectInputError(importWithSpacing("1,1"), "expected three values separated by ','");
+  expectOnly(outDir, {"zeros.raw"});
 }
 
 // ---- real Philips data ---------------------------------------------------------------------

@@ -5,9 +5,10 @@
 
 #include <CLI/CLI.hpp>
 
-#include <cmath>
-#include <cstdlib>
+#include <optional>
 #include <string>
+
+#include "cli_support.h"
 
 namespace octoray::cli {
 
@@ -19,10 +20,8 @@ template <typename Accept>
 CLI::Validator numberCheck(const char* name, const char* what, Accept accept) {
   return CLI::Validator(
       [what, accept](std::string& text) -> std::string {
-        char* stop = nullptr;
-        const double value = std::strtod(text.c_str(), &stop);
-        const bool number = !text.empty() && stop == text.c_str() + text.size();
-        if (number && std::isfinite(value) && accept(value)) return "";
+        const std::optional<double> value = parseFiniteNumber(text);
+        if (value && accept(*value)) return "";
         return std::string(what) + ", not " + text;
       },
       name);

@@ -95,6 +95,15 @@ void joinLog4cplusPool() {
 
 }  // namespace
 
+std::optional<double> parseFiniteNumber(const std::string& text) {
+  char* stop = nullptr;
+  const double value = std::strtod(text.c_str(), &stop);
+  if (text.empty() || stop != text.c_str() + text.size() || !std::isfinite(value)) {
+    return std::nullopt;
+  }
+  return value;
+}
+
 namespace {
 
 std::array<double, 3> parseThree(const std::string& text, char separator, const char* option) {
@@ -107,13 +116,12 @@ std::array<double, 3> parseThree(const std::string& text, char separator, const 
                                   text, separator));
     }
     const std::string part = text.substr(begin, end == std::string::npos ? end : end - begin);
-    char* stop = nullptr;
-    const double v = part.empty() ? 0 : std::strtod(part.c_str(), &stop);
-    if (part.empty() || stop != part.c_str() + part.size() || !std::isfinite(v) || v <= 0) {
+    const std::optional<double> v = parseFiniteNumber(part);
+    if (!v || *v <= 0) {
       throw Error("", fmt::format("{} \"{}\": \"{}\" is not a positive number", option, text,
                                   part));
     }
-    values[n] = v;
+    values[n] = *v;
     begin = end + 1;
   }
   return values;

@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,11 @@ class WorkerThreadsJoinedAtExit {
  private:
   tbb::task_scheduler_handle scheduler_;
 };
+
+// The value of `text` when all of it is one finite number ("2.5", "1e-3"); nullopt for empty
+// text, trailing characters ("2mm"), inf and nan. Options' checks (cli_checks.h) and the
+// parsers below share it.
+std::optional<double> parseFiniteNumber(const std::string& text);
 
 // "512x512x140": three positive integers separated by 'x'. Throws octoray::Error naming
 // `option` otherwise.
