@@ -426,6 +426,129 @@ TEST(VdbFormat, GridsThatAreNotVolumesAreClearErrors) {
   expectErrorMentioning([&] { openVdb((dir / "none.vdb").string()); }, "no grids");
 }
 
+// A grid whose leaves hold more values than openVdb's limit is read in bands of slices: the same
+// box, bounds and values as a whole read, slabs in any order, an active tile across many bands.
+TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
+  const auto dir = test::freshTempDir("vdb_bands");
+  initializeOpenVdb();
+  // Voxels over x -3..36, y 5..30, z -13..41 (bands of 8 slices start at z = -16, -8, ..., so
+  // the first is partial), every eleventh left inactive, and an active 128^3 tile at x 128..255.
+  const auto voxel = [](int64_t x, int64_t y, int64_t z, float offset) {
+    return static_cast<float>((x * 31 + y * 17 + z * 7) % 1000) + 0.5f * static_cast<float>(z % 2) +
+           offset;
+  };
+  const auto inVoxels = [](int64_t x, int64_t y, int64_t z) {
+    return x >= -3 && x <= 36 && y >= 5 && y <= 30 && z >= -13 && z <= 41 && (x + y + z) % 11 != 0;
+  };
+  const auto inTile = [](int64_t x, int64_t y, int64_t z) {
+    return x >= 128 && x < 256 && y >= 0 && y < 128 && z >= 0 && z < 128;
+  };
+  // Uncompressed, so that a grid of the same topology and other values has the same bytes in
+  // the same places.
+  const auto write = [&](const fs::path& file, float offset) {
+    auto grid = openvdb::FloatGrid::create(-1000.0f);
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(0.75));
+    grid->setName("density");
+    auto accessor = grid->getAccessor();
+    for (int z = -13; z <= 41; ++z)
+      for (int y = 5; y <= 30; ++y)
+        for (int x = -3; x <= 36; ++x) {
+          if (inVoxels(x, y, z)) accessor.setValue(openvdb::Coord(x, y, z), voxel(x, y, z, offset));
+        }
+    grid->tree().addTile(2, openvdb::Coord(128, 0, 0), 2500.0f + offset, true);
+    openvdb::io::File vdb(file.string());
+    vdb.setCompression(openvdb::io::COMPRESS_NONE);
+    vdb.write({grid});
+  };
+  const fs::path path = dir / "bands.vdb";
+  write(path, 0.0f);
+  // The box: x -3..255, y 0..127, z -13..127.
+  const auto expected = [&](float offset) {
+    return [&, offset](int64_t i, int64_t j, int64_t k) {
+      const int64_t x = i - 3, y = j, z = k - 13;
+      if (inTile(x, y, z)) return 2500.0f + offset;
+      return inVoxels(x, y, z) ? voxel(x, y, z, offset) : -1000.0f;
+    };
+  };
+
+  const auto whole = openVdb(path.string());
+  const auto banded = openVdb(path.string(), /*wholeGridBytes=*/1);
+  const VolumeInfo& info = banded->info();
+  EXPECT_EQ(info.dims, (std::array<int64_t, 3>{259, 128, 141}));
+  EXPECT_EQ(info.dims, whole->info().dims);
+  expectAffineNear(info.patientFromIndex, whole->info().patientFromIndex, 0);
+  EXPECT_EQ(info.valueLowerBound, whole->info().valueLowerBound);
+  EXPECT_EQ(info.valueUpperBound, whole->info().valueUpperBound);
+  EXPECT_EQ(info.valueLowerBound, -1000.0);
+  EXPECT_EQ(info.valueUpperBound, 2500.0);
+  EXPECT_FALSE(info.integerValues);
+  EXPECT_FALSE(whole->info().integerValues);
+  // Front to back in slabs of 5, across the bands' edges.
+  expectValues(*banded, 5, expected(0.0f));
+  // Back to front: every slab lies before the band in memory and is read from the file again.
+  const int64_t sliceSamples = info.sliceSamples();
+  for (int64_t first = info.dims[2] - 3; first >= 0; first -= 9) {
+    std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 3));
+    banded->readSlab(first, 3, slab);
+    for (int64_t n = 0; n < sliceSamples * 3; ++n) {
+      const int64_t k = first + n / sliceSamples, j = n % sliceSamples / info.dims[0],
+                    i = n % info.dims[0];
+      ASSERT_EQ(slab[static_cast<std::size_t>(n)], expected(0.0f)(i, j, k))
+          << "at " << i << "," << j << "," << k;
+    }
+  }
+
+  // The banded source holds one band of values, no more: with the file's values changed in
+  // place (the same bytes but the values, the same inode) it reads the new ones outside the
+  // band in memory, while the whole grid read at open keeps the old. The band in memory is
+  // the last one, which the first slabs below lie outside.
+  {
+    std::vector<float> slab(static_cast<std::size_t>(sliceSamples));
+    banded->readSlab(info.dims[2] - 1, 1, slab);
+  }
+  write(dir / "other.vdb", 100.0f);
+  std::string other;
+  {
+    std::ifstream in(dir / "other.vdb", std::ios::binary);
+    other.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  ASSERT_EQ(other.size(), fs::file_size(path));
+  std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
+      .write(other.data(), static_cast<std::streamsize>(other.size()));
+  expectValues(*banded, 7, expected(100.0f));
+  expectValues(*whole, 7, expected(0.0f));
+}
+
+// A grid that shares another's tree is written as an instance: its own metadata and transform,
+// the parent's voxels. Read whole and in bands alike.
+TEST(VdbFormat, AnInstanceGridReadsItsParentsVoxelsWithItsOwnTransform) {
+  const auto dir = test::freshTempDir("vdb_instance");
+  initializeOpenVdb();
+  auto smoke = openvdb::FloatGrid::create(-1000.0f);
+  smoke->setName("smoke");
+  for (int z = 0; z < 20; ++z)
+    for (int y = 0; y < 3; ++y)
+      for (int x = 0; x < 4; ++x) {
+        smoke->tree().setValue(openvdb::Coord(x, y, z), static_cast<float>(x + 10 * y + 100 * z));
+      }
+  auto density = openvdb::gridPtrCast<openvdb::FloatGrid>(smoke->copyGrid());  // the same tree
+  density->setName("density");
+  density->setTransform(openvdb::math::Transform::createLinearTransform(2.0));
+  writeWithOpenVdb(dir / "instance.vdb", {smoke, density});
+  const std::string path = (dir / "instance.vdb").string();
+  for (const uint64_t wholeGridBytes : {kVdbWholeGridBytes, uint64_t{1}}) {
+    SCOPED_TRACE(wholeGridBytes);
+    const auto source = openVdb(path, wholeGridBytes);
+    EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{4, 3, 20}));
+    expectAffineNear(source->info().patientFromIndex,
+                     Mat4::fromColumns({2, 0, 0}, {0, 2, 0}, {0, 0, 2}, {0, 0, 0}), 0);
+    EXPECT_EQ(source->info().valueUpperBound, 3.0 + 20 + 1900);
+    expectValues(*source, 6, [](int64_t i, int64_t j, int64_t k) {
+      return static_cast<float>(i + 10 * j + 100 * k);
+    });
+  }
+}
+
 TEST(VdbFormat, DamagedFilesAreClearErrors) {
   const auto dir = test::freshTempDir("vdb_damaged");
   FunctionSource source(kDims, tiltedAffine(), headValue);

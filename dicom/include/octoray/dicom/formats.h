@@ -37,7 +37,13 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
 // The "density" float grid, else the first float or double grid, over its active voxels'
 // bounding box (or the index box octoray's export recorded); the grid's transform must be
 // linear and becomes patientFromIndex. Inactive voxels read as the background (vdb.h).
-std::unique_ptr<VolumeSource> openVdb(const std::string& path);
+// A grid whose leaves hold more than `wholeGridBytes` of values is never in memory whole: it
+// is read in bands of slices, each a clipped read of the file (once at open for the value
+// range, once as slabs are read), so memory stays bounded by the grid's topology (about 1/20
+// of its values) and one band of about half that limit.
+inline constexpr uint64_t kVdbWholeGridBytes = uint64_t{1} << 30;
+std::unique_ptr<VolumeSource> openVdb(const std::string& path,
+                                      uint64_t wholeGridBytes = kVdbWholeGridBytes);
 
 struct OpenOptions {
   std::string series;          // DICOM: table index or SeriesInstanceUID; empty = default
