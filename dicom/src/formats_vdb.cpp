@@ -132,8 +132,7 @@ class WindowedFileBuffer final : public std::streambuf {
 
   bool isOpen() const { return fd_ >= 0; }
 
-  // Forgets the window's bytes (not the position): the next read comes from the file. Each
-  // grid read starts so, never from what an earlier read left behind.
+  // Forgets the window's bytes (not the position): the next read comes from the file.
   void discardWindow() {
     windowStart_ += gptr() - eback();
     setg(window_.data(), window_.data(), window_.data());
@@ -252,7 +251,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr readTopology(std::size_t n) {
     openvdb::GridBase::Ptr grid = freshGrid(n);
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    file_.discardWindow();
+    startRead();
     d.seekToGrid(in_);
     if (d.isInstance()) {
       Archive::readGrid(grid, d, in_);  // an instance records its metadata and transform only
@@ -276,7 +275,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr readClipped(std::size_t n, const openvdb::CoordBBox& clip) {
     openvdb::GridBase::Ptr grid = freshGrid(n);
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    file_.discardWindow();
+    startRead();
     d.seekToGrid(in_);
     if (d.isInstance()) {
       Archive::readGrid(grid, d, in_);
@@ -291,6 +290,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr read(std::size_t n) {
     Entry& entry = entries_[n];
     if (!entry.loaded) {
+      startRead();
       entry.descriptor.seekToGrid(in_);
       Archive::readGrid(entry.grid, entry.descriptor, in_);
       entry.loaded = true;
@@ -324,6 +324,13 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     openvdb::io::StreamMetadata::Ptr& fileMetadata;
   };
 
+  // Each grid read starts from the file, not from what an earlier read left in the window, and
+  // with the stream good again after an earlier read failed (a band read that threw).
+  void startRead() {
+    file_.discardWindow();
+    in_.clear();
+  }
+
   // An empty grid of grid n's type, to read into.
   openvdb::GridBase::Ptr freshGrid(std::size_t n) const {
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
@@ -332,10 +339,18 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     return grid;
   }
 
+  // The grid whose tree instance n shares. OpenVDB writes that grid's tree itself, so a parent
+  // that is an instance too (which could lead round in a circle) is a damaged file.
   std::size_t instanceParent(std::size_t n) const {
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
     for (std::size_t p = 0; p < entries_.size(); ++p) {
-      if (p != n && entries_[p].descriptor.uniqueName() == d.instanceParentName()) return p;
+      if (p == n || entries_[p].descriptor.uniqueName() != d.instanceParentName()) continue;
+      if (entries_[p].descriptor.isInstance()) {
+        throw openvdb::KeyError(
+            fmt::format("grid '{}' is an instance of '{}', which is an instance itself",
+                        d.gridName(), entries_[p].descriptor.gridName()));
+      }
+      return p;
     }
     throw openvdb::KeyError(
         fmt::format("grid '{}' is an instance of a grid the file lacks", d.gridName()));
@@ -400,8 +415,9 @@ auto readingVdb(const std::string& path, Read&& read) {
 // at least bandSlices slices and a leaf boundary, within the box.
 openvdb::CoordBBox bandAround(const openvdb::CoordBBox& box, int32_t z0, int32_t z1,
                               int32_t bandSlices) {
-  const int32_t first = std::max(box.min().z(), z0 & ~7);
-  const int64_t wanted = std::max<int64_t>(z1, int64_t{first} + bandSlices - 1);
+  const int32_t aligned = z0 & ~7;
+  const int32_t first = std::max(box.min().z(), aligned);
+  const int64_t wanted = std::max<int64_t>(z1, int64_t{aligned} + bandSlices - 1);
   const int32_t last = static_cast<int32_t>(std::min<int64_t>(box.max().z(), wanted | 7));
   return {openvdb::Coord(box.min().x(), box.min().y(), first),
           openvdb::Coord(box.max().x(), box.max().y(), last)};
@@ -493,14 +509,16 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::ConstPtr grid, VolumeInfo
 
   // A band holds about half of wholeGridBytes of values (whole leaves, so the box's slices
   // rounded out to 8 voxels), and at least one layer of leaves. Half, not less: each band
-  // reads the whole topology again (1024 x 1024 x 768 phantom, 1.25 GiB of leaves, import to a
-  // store 2026-12-07: 24 s at 790 MiB peak with half, 29 s at 620 MiB with a quarter; the
-  // whole grid in memory: 16 s at 1.8 GiB).
+  // reads the whole topology again (1024 x 1024 x 768 phantom, 1.29 GiB of leaf values,
+  // import to a store 2026-12-07: 23-25 s at 775 MiB peak with half, 28-31 s at 600 MiB with a
+  // quarter; the whole grid in memory: 15-17 s at 1.74 GiB). In doubles: a slice of a grid
+  // near the 32-bit limits would overflow 64 bits.
   using Value = typename GridT::ValueType;
-  const uint64_t bandSliceBytes = (static_cast<uint64_t>(info.dims[0]) + 14) *
-                                  (static_cast<uint64_t>(info.dims[1]) + 14) * sizeof(Value);
-  const auto bandSlices = static_cast<int32_t>(
-      std::clamp<uint64_t>(wholeGridBytes / 2 / bandSliceBytes / 8 * 8, 8, 1 << 24));
+  const double bandSliceBytes = (static_cast<double>(info.dims[0]) + 14) *
+                                (static_cast<double>(info.dims[1]) + 14) * sizeof(Value);
+  const double fitting =
+      std::floor(static_cast<double>(wholeGridBytes) / 2 / bandSliceBytes / 8) * 8;
+  const auto bandSlices = static_cast<int32_t>(std::clamp(fitting, 8.0, double{1 << 24}));
 
   // Bounds cover every sample: the active values, and the background where voxels are inactive.
   const bool someInactive =

@@ -517,6 +517,19 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
       .write(other.data(), static_cast<std::streamsize>(other.size()));
   expectValues(*banded, 7, expected(100.0f));
   expectValues(*whole, 7, expected(0.0f));
+
+  // A band read that fails (the file cut short under it) is an error naming the file, and
+  // leaves no band behind; once the file is whole again the source reads on.
+  fs::resize_file(path, other.size() / 2);
+  expectErrorMentioning(
+      [&] {
+        std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 2));
+        banded->readSlab(0, 2, slab);
+      },
+      path.string());
+  std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
+      .write(other.data(), static_cast<std::streamsize>(other.size()));
+  expectValues(*banded, 11, expected(100.0f));
 }
 
 // A grid that shares another's tree is written as an instance: its own metadata and transform,

@@ -40,7 +40,9 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
 // A grid whose leaves hold more than `wholeGridBytes` of values is never in memory whole: it
 // is read in bands of slices, each a clipped read of the file (once at open for the value
 // range, once as slabs are read), so memory stays bounded by the grid's topology (about 1/20
-// of its values) and one band of about half that limit.
+// of its values) and one band of about half that limit. Only a file that records where its
+// grids are (every file io::File writes) can be read so; one without (io::Stream's) is read
+// whole at any size.
 inline constexpr uint64_t kVdbWholeGridBytes = uint64_t{1} << 30;
 std::unique_ptr<VolumeSource> openVdb(const std::string& path,
                                       uint64_t wholeGridBytes = kVdbWholeGridBytes);
