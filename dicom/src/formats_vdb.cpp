@@ -132,6 +132,12 @@ class WindowedFileBuffer final : public std::streambuf {
 
   bool isOpen() const { return fd_ >= 0; }
 
+  // The file's size now; -1 if it cannot be read.
+  int64_t size() const {
+    struct stat st {};
+    return ::fstat(fd_, &st) == 0 ? static_cast<int64_t>(st.st_size) : -1;
+  }
+
   // Forgets the window's bytes (not the position): the next read comes from the file.
   void discardWindow() {
     windowStart_ += gptr() - eback();
@@ -195,7 +201,7 @@ class WindowedFileBuffer final : public std::streambuf {
 // the node being read when a read inside its topology throws.
 class CheckedVdbReader final : public openvdb::io::Archive {
  public:
-  explicit CheckedVdbReader(const std::string& path) : file_(path), in_(&file_) {
+  explicit CheckedVdbReader(const std::string& path) : path_(path), file_(path), in_(&file_) {
     if (!file_.isOpen()) throw Error(path, "cannot open the file");
     const auto fileBytes = static_cast<int64_t>(std::filesystem::file_size(path));
     in_.exceptions(std::ios::failbit | std::ios::badbit);
@@ -251,7 +257,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr readTopology(std::size_t n) {
     openvdb::GridBase::Ptr grid = freshGrid(n);
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    startRead();
+    startRead(n);
     d.seekToGrid(in_);
     if (d.isInstance()) {
       Archive::readGrid(grid, d, in_);  // an instance records its metadata and transform only
@@ -275,7 +281,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr readClipped(std::size_t n, const openvdb::CoordBBox& clip) {
     openvdb::GridBase::Ptr grid = freshGrid(n);
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    startRead();
+    startRead(n);
     d.seekToGrid(in_);
     if (d.isInstance()) {
       Archive::readGrid(grid, d, in_);
@@ -290,7 +296,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   openvdb::GridBase::Ptr read(std::size_t n) {
     Entry& entry = entries_[n];
     if (!entry.loaded) {
-      startRead();
+      startRead(n);
       entry.descriptor.seekToGrid(in_);
       Archive::readGrid(entry.grid, entry.descriptor, in_);
       entry.loaded = true;
@@ -326,9 +332,18 @@ class CheckedVdbReader final : public openvdb::io::Archive {
 
   // Each grid read starts from the file, not from what an earlier read left in the window, and
   // with the stream good again after an earlier read failed (a band read that threw).
-  void startRead() {
+  // The grid's recorded end is checked against the file's size again first: a file cut short
+  // after it was opened would otherwise fail inside OpenVDB's topology read, which leaks the
+  // node it was reading.
+  void startRead(std::size_t n) {
     file_.discardWindow();
     in_.clear();
+    const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
+    if (inputHasGridOffsets() && file_.size() < d.getEndPos()) {
+      throw Error(path_, fmt::format("the file is now {} bytes, shorter than when it was opened: "
+                                     "grid '{}' ends at byte {}",
+                                     file_.size(), d.gridName(), d.getEndPos()));
+    }
   }
 
   // An empty grid of grid n's type, to read into.
@@ -361,6 +376,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     openvdb::GridBase::Ptr grid;
     bool loaded = false;
   };
+  std::string path_;
   WindowedFileBuffer file_;
   std::istream in_;
   openvdb::io::StreamMetadata::Ptr streamMetadata_;

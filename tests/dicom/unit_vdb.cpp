@@ -521,12 +521,12 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   // A band read that fails (the file cut short under it) is an error naming the file, and
   // leaves no band behind; once the file is whole again the source reads on.
   fs::resize_file(path, other.size() / 2);
-  expectErrorMentioning(
-      [&] {
-        std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 2));
-        banded->readSlab(0, 2, slab);
-      },
-      path.string());
+  const auto readFirstSlices = [&] {
+    std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 2));
+    banded->readSlab(0, 2, slab);
+  };
+  expectErrorMentioning(readFirstSlices, path.string());
+  expectErrorMentioning(readFirstSlices, "shorter than when it was opened");
   std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
       .write(other.data(), static_cast<std::streamsize>(other.size()));
   expectValues(*banded, 11, expected(100.0f));
