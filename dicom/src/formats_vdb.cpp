@@ -23,6 +23,7 @@
 #include <limits>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <streambuf>
 #include <vector>
 
@@ -92,6 +93,14 @@ struct ValueScan {
   }
 };
 
+// Active tiles above the leaves (depth treeDepth() - 1 would be the leaf voxels).
+template <typename TreeT>
+void scanActiveTiles(const TreeT& tree, ValueScan& scan) {
+  auto tile = tree.cbeginValueOn();
+  tile.setMaxDepth(tree.treeDepth() - 2);
+  for (; tile; ++tile) scan.add(static_cast<double>(*tile));
+}
+
 template <typename TreeT>
 ValueScan scanActiveValues(const TreeT& tree) {
   openvdb::tree::LeafManager<const TreeT> leaves(tree);
@@ -107,17 +116,14 @@ ValueScan scanActiveValues(const TreeT& tree) {
         a.join(b);
         return a;
       });
-  // Active tiles above the leaves (depth treeDepth() - 1 would be the leaf voxels).
-  auto tile = tree.cbeginValueOn();
-  tile.setMaxDepth(tree.treeDepth() - 2);
-  for (; tile; ++tile) scan.add(static_cast<double>(*tile));
+  scanActiveTiles(tree, scan);
   return scan;
 }
 
 // A read-only stream buffer over a file, read with pread through a 1 MiB window: a seek or a
-// position query that lands inside the window costs no system call. A clipped read seeks over
-// the values of every leaf outside the clip, and OpenVDB asks where it is at every leaf; through
-// std::filebuf each of those is an lseek, and a seek also drops the buffer.
+// position query that lands inside the window costs no system call. A band's leaves lie a few
+// kilobytes apart in the file, and the reader asks where it is at every leaf; through
+// std::filebuf each of those seeks and queries is an lseek, and a seek also drops the buffer.
 class WindowedFileBuffer final : public std::streambuf {
  public:
   explicit WindowedFileBuffer(const std::string& path)
@@ -244,8 +250,8 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   // An empty grid of grid n's type (the tree is read by read()).
   const openvdb::GridBase& typed(std::size_t n) const { return *entries_[n].grid; }
 
-  // Whether readTopology and readClipped can read grids in parts: the file records where each
-  // grid is, and stores a grid's transform before its topology (format 216 and later).
+  // Whether readTopology and readingLeafValues can read grids in parts: the file records where
+  // each grid is, and stores a grid's transform before its topology (format 216 and later).
   bool readsInParts() const {
     return inputHasGridOffsets() && fileVersion() >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING;
   }
@@ -273,23 +279,29 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     openvdb::io::setGridClass(in_, grid->getGridClass());
     grid->readTransform(in_);
     grid->readTopology(in_);
+    entries_[n].leafValuesPos = in_.tellg();
     return grid;
   }
 
-  // Grid n with only its voxels and tiles inside `clip` (index space): OpenVDB seeks over the
-  // values of every leaf outside it.
-  openvdb::GridBase::Ptr readClipped(std::size_t n, const openvdb::CoordBBox& clip) {
-    openvdb::GridBase::Ptr grid = freshGrid(n);
-    const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    startRead(n);
-    d.seekToGrid(in_);
-    if (d.isInstance()) {
-      Archive::readGrid(grid, d, in_);
-      grid->setTree(readClipped(instanceParent(n), clip)->baseTreePtr());
-    } else {
-      Archive::readGrid(grid, d, in_, clip);
-    }
-    return grid;
+  // Runs read(stream, fromHalf, start) with the stream set up as Archive::readGrid sets it up
+  // for the leaf values of grid n (its parent's, for an instance), `start` being where the first
+  // leaf's values are. `topology` is grid n as readTopology read it; the values go into its
+  // leaves, whose background `background` is. `read` seeks to the leaves it reads.
+  template <typename Read>
+  void readingLeafValues(std::size_t n, const openvdb::GridBase& topology, const void* background,
+                         Read&& read) {
+    const std::size_t owner = entries_[n].descriptor.isInstance() ? instanceParent(n) : n;
+    const Entry& entry = entries_[owner];
+    if (entry.leafValuesPos < 0) throw std::logic_error("leaf values read before the topology");
+    startRead(owner);
+    entry.descriptor.seekToGrid(in_);
+    readGridCompression(in_);
+    const bool fromHalf = entry.descriptor.saveFloatAsHalf();
+    GridStreamMetadata gridMetadata(in_, streamMetadata_, fromHalf);
+    gridMetadata.metadata->gridMetadata() = static_cast<const openvdb::MetaMap&>(topology);
+    openvdb::io::setGridClass(in_, topology.getGridClass());
+    openvdb::io::setGridBackgroundValuePtr(in_, background);
+    read(in_, fromHalf, entry.leafValuesPos);
   }
 
   // Grid n with its tree, and its instance parent's tree where it shares one.
@@ -375,6 +387,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     openvdb::io::GridDescriptor descriptor;
     openvdb::GridBase::Ptr grid;
     bool loaded = false;
+    std::streamoff leafValuesPos = -1;  // where readTopology found the leaf values to begin
   };
   std::string path_;
   WindowedFileBuffer file_;
@@ -439,20 +452,101 @@ openvdb::CoordBBox bandAround(const openvdb::CoordBBox& box, int32_t z0, int32_t
           openvdb::Coord(box.max().x(), box.max().y(), last)};
 }
 
-// Slabs of the grid: from the whole grid in memory, or from the band of slices that holds
-// them, read from the file when the slab leaves the band in memory.
+// The leaf values of a grid read in parts, a leaf at a time into the leaves of its topology, each
+// leaf once per pass. The first pass reads every leaf in the order of the file, for the value
+// range, and records where each leaf's values start; after it, the leaves of one band of slices
+// at a time are read from there, and those of the band before are let go. The topology stays in
+// memory (about a twentieth of the values), so no band reads it again.
+template <typename GridT>
+class LeafValues {
+ public:
+  using LeafT = typename GridT::TreeType::LeafNodeType;
+
+  LeafValues(std::shared_ptr<CheckedVdbReader> file, std::size_t gridIndex,
+             typename GridT::Ptr topology)
+      : file_(std::move(file)), gridIndex_(gridIndex), grid_(std::move(topology)) {
+    // The order in which OpenVDB writes the leaves (root table, then each node's children by
+    // index), which is its leaf iterator's.
+    for (auto leaf = grid_->tree().beginLeaf(); leaf; ++leaf) leaves_.push_back(leaf.getLeaf());
+  }
+  LeafValues(const LeafValues&) = delete;
+  LeafValues& operator=(const LeafValues&) = delete;
+
+  const GridT& grid() const { return *grid_; }
+
+  // Reads every leaf once, front of the file to back, recording where each one starts; returns
+  // the range of the active values, tiles included. One leaf is in memory at a time.
+  ValueScan scan() {
+    release();
+    starts_.clear();
+    starts_.reserve(leaves_.size());
+    ValueScan scan;
+    reading([&](std::istream& in, bool fromHalf, std::streamoff firstLeaf) {
+      in.seekg(firstLeaf);
+      for (LeafT* leaf : leaves_) {
+        starts_.push_back(in.tellg());
+        loaded_.push_back(leaf);
+        leaf->readBuffers(in, fromHalf);
+        for (auto it = leaf->cbeginValueOn(); it; ++it) scan.add(static_cast<double>(*it));
+        release();
+      }
+    });
+    scanActiveTiles(grid_->tree(), scan);
+    return scan;
+  }
+
+  // Reads the values of the leaves that meet slices [z0, z1], after letting go of those read
+  // before. scan() must have run.
+  void load(int32_t z0, int32_t z1) {
+    release();
+    if (starts_.size() != leaves_.size()) throw std::logic_error("leaf values loaded before the scan");
+    reading([&](std::istream& in, bool fromHalf, std::streamoff) {
+      for (std::size_t i = 0; i < leaves_.size(); ++i) {
+        LeafT* leaf = leaves_[i];
+        const int32_t z = leaf->origin().z();
+        if (z > z1 || int64_t{z} + LeafT::DIM <= z0) continue;
+        in.seekg(starts_[i]);
+        loaded_.push_back(leaf);
+        leaf->readBuffers(in, fromHalf);
+      }
+    });
+  }
+
+ private:
+  template <typename Read>
+  void reading(Read&& read) {
+    file_->readingLeafValues(gridIndex_, *grid_, &grid_->tree().background(), read);
+  }
+
+  // The leaves read go back to holding no values (as readTopology left them).
+  void release() {
+    for (LeafT* leaf : loaded_) {
+      typename LeafT::Buffer none(openvdb::PartialCreate(), grid_->background());
+      leaf->swap(none);  // `none` takes the values and frees them
+    }
+    loaded_.clear();
+  }
+
+  std::shared_ptr<CheckedVdbReader> file_;
+  std::size_t gridIndex_;
+  typename GridT::Ptr grid_;        // the topology, with the leaves of loaded_ holding values
+  std::vector<LeafT*> leaves_;      // in the file's order
+  std::vector<std::streamoff> starts_;  // where each of leaves_ starts in the file
+  std::vector<LeafT*> loaded_;
+};
+
+// Slabs of the grid: from the whole grid in memory, or from the band of slices whose leaf values
+// are read, read from the file when the slab leaves that band.
 template <typename GridT>
 class VdbSource final : public VolumeSource {
  public:
-  // Whole: `grid` holds every value. In bands: `file` reads grid `gridIndex`, bandSlices at a
-  // time.
+  // Whole: `grid` holds every value (leaves null). In bands: `leaves` reads bandSlices at a time.
   VdbSource(VolumeInfo info, const openvdb::CoordBBox& box, typename GridT::ConstPtr grid,
-            std::shared_ptr<CheckedVdbReader> file, std::size_t gridIndex, int32_t bandSlices)
+            std::unique_ptr<LeafValues<GridT>> leaves, int32_t bandSlices)
       : info_(std::move(info)),
         box_(box),
         grid_(std::move(grid)),
-        file_(std::move(file)),
-        gridIndex_(gridIndex),
+        leaves_(std::move(leaves)),
         bandSlices_(bandSlices) {}
 
   const VolumeInfo& info() const override { return info_; }
@@ -462,13 +556,10 @@ class VdbSource final : public VolumeSource {
     // Slices lie inside the grid's box, so their z fits the grid's 32-bit coordinates.
     const auto z0 = static_cast<int32_t>(box_.min().z() + firstSlice);
     const auto z1 = static_cast<int32_t>(z0 + sliceCount - 1);
-    if (file_ && !(band_ && band_->min().z() <= z0 && z1 <= band_->max().z())) {
-      grid_.reset();  // the band before goes before the next is read
+    if (leaves_ && !(band_ && band_->min().z() <= z0 && z1 <= band_->max().z())) {
       band_.reset();
       const openvdb::CoordBBox band = bandAround(box_, z0, z1, bandSlices_);
-      grid_ = readingVdb(info_.sourcePath, [&] {
-        return openvdb::gridConstPtrCast<GridT>(file_->readClipped(gridIndex_, band));
-      });
+      readingVdb(info_.sourcePath, [&] { leaves_->load(band.min().z(), band.max().z()); });
       band_ = band;
     }
     const openvdb::Coord min(box_.min().x(), box_.min().y(), z0);
@@ -476,22 +567,21 @@ class VdbSource final : public VolumeSource {
     // x fastest (LayoutXYZ) is our slab layout; inactive voxels come out as the background.
     openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(openvdb::CoordBBox(min, max),
                                                                   out.data());
-    openvdb::tools::copyToDense(*grid_, dense);
+    openvdb::tools::copyToDense(leaves_ ? leaves_->grid() : *grid_, dense);
   }
 
  private:
   VolumeInfo info_;
   openvdb::CoordBBox box_;         // the volume's index box in grid coordinates
-  typename GridT::ConstPtr grid_;  // the whole grid, or the band in memory (null: none yet)
-  std::shared_ptr<CheckedVdbReader> file_;  // null when grid_ is whole
-  std::size_t gridIndex_;
+  typename GridT::ConstPtr grid_;  // the whole grid (null when read in bands)
+  std::unique_ptr<LeafValues<GridT>> leaves_;  // null when grid_ is whole
   int32_t bandSlices_;
-  std::optional<openvdb::CoordBBox> band_;  // the slices grid_ holds, when read in bands
+  std::optional<openvdb::CoordBBox> band_;  // the slices whose leaf values leaves_ holds
 };
 
 // `grid` is the whole grid (file null), or its topology alone, to be read from `file` in bands.
 template <typename GridT>
-std::unique_ptr<VolumeSource> openGrid(typename GridT::ConstPtr grid, VolumeInfo info,
+std::unique_ptr<VolumeSource> openGrid(typename GridT::Ptr grid, VolumeInfo info,
                                        const std::string& path,
                                        std::shared_ptr<CheckedVdbReader> file,
                                        std::size_t gridIndex, uint64_t wholeGridBytes) {
@@ -523,17 +613,18 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::ConstPtr grid, VolumeInfo
   info.patientFromIndex = worldFromGridIndex(grid->transform(), path) * indexFromBox;
   detail::checkAffine(info.patientFromIndex, path);
 
-  // A band holds about half of wholeGridBytes of values (whole leaves, so the box's slices
-  // rounded out to 8 voxels), and at least one layer of leaves. Half, not less: each band
-  // reads the whole topology again (1024 x 1024 x 768 phantom, 1.29 GiB of leaf values,
-  // import to a store 2026-12-07: 23-25 s at 775 MiB peak with half, 28-31 s at 600 MiB with a
-  // quarter; the whole grid in memory: 15-17 s at 1.74 GiB). In doubles: a slice of a grid
-  // near the 32-bit limits would overflow 64 bits.
+  // A band holds at most about a quarter of wholeGridBytes of values (whole leaves, so the
+  // box's slices rounded out to 8 voxels), and at least one layer of leaves. Each leaf is read
+  // once whatever the band's size; a smaller band costs more passes over the file and saves
+  // memory (import to a store, 2026-12-07; 1024 x 1024 x 768 phantom, 678,503 leaves: 8-9 s at
+  // 612 MiB with a quarter, 9-10 s at 777 MiB with half; 2048 x 2048 x 768, 2,675,458
+  // leaves: 40 s at 1.21 GiB, 37 s at 1.37 GiB). In doubles: a slice of a grid near the
+  // 32-bit limits would overflow 64 bits.
   using Value = typename GridT::ValueType;
   const double bandSliceBytes = (static_cast<double>(info.dims[0]) + 14) *
                                 (static_cast<double>(info.dims[1]) + 14) * sizeof(Value);
   const double fitting =
-      std::floor(static_cast<double>(wholeGridBytes) / 2 / bandSliceBytes / 8) * 8;
+      std::floor(static_cast<double>(wholeGridBytes) / 4 / bandSliceBytes / 8) * 8;
   const auto bandSlices = static_cast<int32_t>(std::clamp(fitting, 8.0, double{1 << 24}));
 
   // Bounds cover every sample: the active values, and the background where voxels are inactive.
@@ -541,17 +632,12 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::ConstPtr grid, VolumeInfo
       grid->activeVoxelCount() < static_cast<openvdb::Index64>(info.sampleCount());
   const auto background = static_cast<double>(grid->background());
   ValueScan scan;
+  std::unique_ptr<LeafValues<GridT>> leaves;
   if (!file) {
     scan = scanActiveValues(grid->tree());
   } else {
-    grid.reset();  // the topology goes before the bands come: each band reads its own
-    for (int64_t z = box.min().z(); z <= box.max().z();) {
-      const openvdb::CoordBBox band =
-          bandAround(box, static_cast<int32_t>(z), static_cast<int32_t>(z), bandSlices);
-      const auto part = openvdb::gridConstPtrCast<GridT>(file->readClipped(gridIndex, band));
-      scan.join(scanActiveValues(part->tree()));
-      z = int64_t{band.max().z()} + 1;
-    }
+    leaves = std::make_unique<LeafValues<GridT>>(std::move(file), gridIndex, std::move(grid));
+    scan = leaves->scan();
   }
   if (someInactive) scan.add(background);
   info.integerValues = scan.integers;
@@ -559,8 +645,8 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::ConstPtr grid, VolumeInfo
     info.valueLowerBound = scan.lo;
     info.valueUpperBound = scan.hi;
   }
-  return std::make_unique<VdbSource<GridT>>(std::move(info), box, std::move(grid), std::move(file),
-                                            gridIndex, bandSlices);
+  return std::make_unique<VdbSource<GridT>>(std::move(info), box, std::move(grid),
+                                            std::move(leaves), bandSlices);
 }
 
 }  // namespace

@@ -463,10 +463,11 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   const fs::path path = dir / "bands.vdb";
   write(path, 0.0f);
   // The box: x -3..255, y 0..127, z -13..127.
-  const auto expected = [&](float offset) {
-    return [&, offset](int64_t i, int64_t j, int64_t k) {
+  // Tiles hold the value of the topology read at open, leaf voxels that of the file read.
+  const auto expected = [&](float offset, float tileOffset) {
+    return [&, offset, tileOffset](int64_t i, int64_t j, int64_t k) {
       const int64_t x = i - 3, y = j, z = k - 13;
-      if (inTile(x, y, z)) return 2500.0f + offset;
+      if (inTile(x, y, z)) return 2500.0f + tileOffset;
       return inVoxels(x, y, z) ? voxel(x, y, z, offset) : -1000.0f;
     };
   };
@@ -484,7 +485,7 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   EXPECT_FALSE(info.integerValues);
   EXPECT_FALSE(whole->info().integerValues);
   // Front to back in slabs of 5, across the bands' edges.
-  expectValues(*banded, 5, expected(0.0f));
+  expectValues(*banded, 5, expected(0.0f, 0.0f));
   // Back to front: every slab lies before the band in memory and is read from the file again.
   const int64_t sliceSamples = info.sliceSamples();
   for (int64_t first = info.dims[2] - 3; first >= 0; first -= 9) {
@@ -493,15 +494,16 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
     for (int64_t n = 0; n < sliceSamples * 3; ++n) {
       const int64_t k = first + n / sliceSamples, j = n % sliceSamples / info.dims[0],
                     i = n % info.dims[0];
-      ASSERT_EQ(slab[static_cast<std::size_t>(n)], expected(0.0f)(i, j, k))
+      ASSERT_EQ(slab[static_cast<std::size_t>(n)], expected(0.0f, 0.0f)(i, j, k))
           << "at " << i << "," << j << "," << k;
     }
   }
 
-  // The banded source holds one band of values, no more: with the file's values changed in
-  // place (the same bytes but the values, the same inode) it reads the new ones outside the
+  // The banded source holds one band of leaf values, no more: with the file's values changed
+  // in place (the same bytes but the values, the same inode) it reads the new ones outside the
   // band in memory, while the whole grid read at open keeps the old. The band in memory is
-  // the last one, which the first slabs below lie outside.
+  // the last one, which the first slabs below lie outside. The tiles' values are part of the
+  // topology, which the banded source keeps from open.
   {
     std::vector<float> slab(static_cast<std::size_t>(sliceSamples));
     banded->readSlab(info.dims[2] - 1, 1, slab);
@@ -515,8 +517,8 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   ASSERT_EQ(other.size(), fs::file_size(path));
   std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
       .write(other.data(), static_cast<std::streamsize>(other.size()));
-  expectValues(*banded, 7, expected(100.0f));
-  expectValues(*whole, 7, expected(0.0f));
+  expectValues(*banded, 7, expected(100.0f, 0.0f));
+  expectValues(*whole, 7, expected(0.0f, 0.0f));
 
   // A band read that fails (the file cut short under it) is an error naming the file, and
   // leaves no band behind; once the file is whole again the source reads on.
@@ -529,7 +531,66 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   expectErrorMentioning(readFirstSlices, "shorter than when it was opened");
   std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
       .write(other.data(), static_cast<std::streamsize>(other.size()));
-  expectValues(*banded, 11, expected(100.0f));
+  expectValues(*banded, 11, expected(100.0f, 0.0f));
+}
+
+// Read a leaf at a time, the values come out as OpenVDB's own whole read gives them, whatever
+// the compression and with half floats: inactive voxels that hold the background (which active-
+// mask compression does not store, and fills in from the tree's background) and ones that hold
+// another value (which it stores).
+TEST(VdbFormat, BandsReadEveryCompressionAsTheWholeGridDoes) {
+  const auto dir = test::freshTempDir("vdb_band_compression");
+  initializeOpenVdb();
+  auto grid = openvdb::FloatGrid::create(-1000.0f);
+  grid->setName("density");
+  auto accessor = grid->getAccessor();
+  for (int z = 0; z < 50; ++z)
+    for (int y = 0; y < 30; ++y)
+      for (int x = 0; x < 40; ++x) {
+        const openvdb::Coord c(x, y, z);
+        const float v = static_cast<float>((x * 13 + y * 7 + z * 29) % 3001) - 1000.25f;
+        if ((x * y + z) % 5 == 0) {
+          // Inactive: the background below z 24, another value above it.
+          if (z >= 24) accessor.setValueOff(c, 7.0f + static_cast<float>(z));
+        } else {
+          accessor.setValue(c, v);
+        }
+      }
+  std::vector<uint32_t> compressions = {openvdb::io::COMPRESS_NONE, openvdb::io::COMPRESS_ZIP,
+                                        openvdb::io::COMPRESS_ZIP | openvdb::io::COMPRESS_ACTIVE_MASK,
+                                        openvdb::io::COMPRESS_ACTIVE_MASK};
+  if (openvdb::io::Archive::hasBloscCompression()) {
+    compressions.push_back(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+  }
+  for (const bool half : {false, true}) {
+    for (const uint32_t compression : compressions) {
+      SCOPED_TRACE(fmt::format("compression {}, half floats {}", compression, half));
+      grid->setSaveFloatAsHalf(half);
+      const fs::path path = dir / fmt::format("c{}h{}.vdb", compression, half ? 1 : 0);
+      {
+        openvdb::io::File vdb(path.string());
+        vdb.setCompression(compression);
+        vdb.write({grid});
+      }
+      const auto whole = openVdb(path.string());
+      const auto banded = openVdb(path.string(), /*wholeGridBytes=*/1);
+      ASSERT_EQ(banded->info().dims, whole->info().dims);
+      EXPECT_EQ(banded->info().valueLowerBound, whole->info().valueLowerBound);
+      EXPECT_EQ(banded->info().valueUpperBound, whole->info().valueUpperBound);
+      const int64_t sliceSamples = whole->info().sliceSamples(), slices = whole->info().dims[2];
+      std::vector<float> all(static_cast<std::size_t>(sliceSamples * slices));
+      whole->readSlab(0, slices, all);
+      // Spot checks of the whole read itself: an inactive voxel with the background, one with
+      // its own value, an active one (at full precision where not stored as half).
+      const auto at = [&](int64_t x, int64_t y, int64_t z) {
+        return all[static_cast<std::size_t>(z * sliceSamples + y * 40 + x)];
+      };
+      EXPECT_EQ(at(0, 0, 0), -1000.0f);
+      EXPECT_EQ(at(0, 0, 25), 32.0f);
+      if (!half) EXPECT_EQ(at(1, 1, 1), static_cast<float>((13 + 7 + 29) % 3001) - 1000.25f);
+      expectValues(*banded, 6, [&](int64_t i, int64_t j, int64_t k) { return at(i, j, k); });
+    }
+  }
 }
 
 // A grid that shares another's tree is written as an instance: its own metadata and transform,

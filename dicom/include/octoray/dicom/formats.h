@@ -37,12 +37,12 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
 // The "density" float grid, else the first float or double grid, over its active voxels'
 // bounding box (or the index box octoray's export recorded); the grid's transform must be
 // linear and becomes patientFromIndex. Inactive voxels read as the background (vdb.h).
-// A grid whose leaves hold more than `wholeGridBytes` of values is never in memory whole: it
-// is read in bands of slices, each a clipped read of the file (once at open for the value
-// range, once as slabs are read), so memory stays bounded by the grid's topology (about 1/20
-// of its values) and one band of about half that limit. Only a file that records where its
-// grids are (every file io::File writes) can be read so; one without (io::Stream's) is read
-// whole at any size.
+// A grid whose leaves hold more than `wholeGridBytes` of values is never in memory whole: its
+// topology (about 1/20 of its values) is read first and kept, then its leaves' values a leaf
+// at a time, each once per pass: all of them at open, for the value range, then those of one
+// band of slices (about half that limit) at a time as slabs are read. Only a file that records
+// where its grids are (every file io::File writes) can be read so; one without (io::Stream's)
+// is read whole at any size.
 inline constexpr uint64_t kVdbWholeGridBytes = uint64_t{1} << 30;
 std::unique_ptr<VolumeSource> openVdb(const std::string& path,
                                       uint64_t wholeGridBytes = kVdbWholeGridBytes);
