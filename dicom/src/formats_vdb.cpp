@@ -144,6 +144,13 @@ class WindowedFileBuffer final : public std::streambuf {
     return ::fstat(fd_, &st) == 0 ? static_cast<int64_t>(st.st_size) : -1;
   }
 
+  // When the file was last written, in nanoseconds; -1 if it cannot be read.
+  int64_t modifiedNs() const {
+    struct stat st {};
+    if (::fstat(fd_, &st) != 0) return -1;
+    return int64_t{st.st_mtim.tv_sec} * 1'000'000'000 + st.st_mtim.tv_nsec;
+  }
+
   // Forgets the window's bytes (not the position): the next read comes from the file.
   void discardWindow() {
     windowStart_ += gptr() - eback();
@@ -210,6 +217,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   explicit CheckedVdbReader(const std::string& path) : path_(path), file_(path), in_(&file_) {
     if (!file_.isOpen()) throw Error(path, "cannot open the file");
     const auto fileBytes = static_cast<int64_t>(std::filesystem::file_size(path));
+    openedModifiedNs_ = file_.modifiedNs();
     in_.exceptions(std::ios::failbit | std::ios::badbit);
     readHeader(in_);
     streamMetadata_ = std::make_shared<openvdb::io::StreamMetadata>();
@@ -275,6 +283,9 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     openvdb::io::setGridClass(in_, openvdb::GRID_UNKNOWN);
     openvdb::io::setGridBackgroundValuePtr(in_, nullptr);
     grid->readMeta(in_);
+    // OpenVDB's writer puts a delayed-load table (a few bytes a leaf) in the grid's metadata,
+    // of use only to io::File's delayed loading: not kept with the topology.
+    grid->removeMeta(openvdb::GridBase::META_FILE_DELAYED_LOAD);
     gridMetadata.metadata->gridMetadata() = static_cast<openvdb::MetaMap&>(*grid);
     openvdb::io::setGridClass(in_, grid->getGridClass());
     grid->readTransform(in_);
@@ -296,7 +307,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     startRead(owner);
     entry.descriptor.seekToGrid(in_);
     readGridCompression(in_);
-    const bool fromHalf = entry.descriptor.saveFloatAsHalf();
+    const bool fromHalf = topology.saveFloatAsHalf();  // as Grid::readBuffers takes it
     GridStreamMetadata gridMetadata(in_, streamMetadata_, fromHalf);
     gridMetadata.metadata->gridMetadata() = static_cast<const openvdb::MetaMap&>(topology);
     openvdb::io::setGridClass(in_, topology.getGridClass());
@@ -356,6 +367,11 @@ class CheckedVdbReader final : public openvdb::io::Archive {
                                      "grid '{}' ends at byte {}",
                                      file_.size(), d.gridName(), d.getEndPos()));
     }
+    // Where each leaf starts was recorded from the file as it was: a file written since could
+    // put other bytes there.
+    if (file_.modifiedNs() != openedModifiedNs_) {
+      throw Error(path_, "the file was written to after it was opened: open it again");
+    }
   }
 
   // An empty grid of grid n's type, to read into.
@@ -391,6 +407,7 @@ class CheckedVdbReader final : public openvdb::io::Archive {
   };
   std::string path_;
   WindowedFileBuffer file_;
+  int64_t openedModifiedNs_ = -1;
   std::istream in_;
   openvdb::io::StreamMetadata::Ptr streamMetadata_;
   std::vector<Entry> entries_;

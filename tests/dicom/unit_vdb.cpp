@@ -508,6 +508,7 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
     std::vector<float> slab(static_cast<std::size_t>(sliceSamples));
     banded->readSlab(info.dims[2] - 1, 1, slab);
   }
+  const auto openedAt = fs::last_write_time(path);
   write(dir / "other.vdb", 100.0f);
   std::string other;
   {
@@ -517,20 +518,27 @@ TEST(VdbFormat, AGridAboveTheLimitIsReadInBands) {
   ASSERT_EQ(other.size(), fs::file_size(path));
   std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
       .write(other.data(), static_cast<std::streamsize>(other.size()));
+  const auto readFirstSlices = [&] {
+    std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 2));
+    banded->readSlab(0, 2, slab);
+  };
+  // A file written to after it was opened is refused: where each leaf starts was read from the
+  // file as it was then.
+  expectErrorMentioning(readFirstSlices, path.string());
+  expectErrorMentioning(readFirstSlices, "written to after it was opened");
+  // With its modification time put back (the same layout, other values), it reads on.
+  fs::last_write_time(path, openedAt);
   expectValues(*banded, 7, expected(100.0f, 0.0f));
   expectValues(*whole, 7, expected(0.0f, 0.0f));
 
   // A band read that fails (the file cut short under it) is an error naming the file, and
   // leaves no band behind; once the file is whole again the source reads on.
   fs::resize_file(path, other.size() / 2);
-  const auto readFirstSlices = [&] {
-    std::vector<float> slab(static_cast<std::size_t>(sliceSamples * 2));
-    banded->readSlab(0, 2, slab);
-  };
   expectErrorMentioning(readFirstSlices, path.string());
   expectErrorMentioning(readFirstSlices, "shorter than when it was opened");
   std::fstream(path, std::ios::in | std::ios::out | std::ios::binary)
       .write(other.data(), static_cast<std::streamsize>(other.size()));
+  fs::last_write_time(path, openedAt);
   expectValues(*banded, 11, expected(100.0f, 0.0f));
 }
 

@@ -40,9 +40,10 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
 // A grid whose leaves hold more than `wholeGridBytes` of values is never in memory whole: its
 // topology (about 1/20 of its values) is read first and kept, then its leaves' values a leaf
 // at a time, each once per pass: all of them at open, for the value range, then those of one
-// band of slices (about half that limit) at a time as slabs are read. Only a file that records
-// where its grids are (every file io::File writes) can be read so; one without (io::Stream's)
-// is read whole at any size.
+// band of slices (at most about a quarter of that limit) at a time as slabs are read; a file
+// written to after it was opened is then an error. Only a file that records where its grids
+// are (every file io::File writes) can be read so; one without (io::Stream's) is read whole at
+// any size.
 inline constexpr uint64_t kVdbWholeGridBytes = uint64_t{1} << 30;
 std::unique_ptr<VolumeSource> openVdb(const std::string& path,
                                       uint64_t wholeGridBytes = kVdbWholeGridBytes);
