@@ -516,7 +516,9 @@ class LeafValues {
   // before. scan() must have run.
   void load(int32_t z0, int32_t z1) {
     release();
-    if (starts_.size() != leaves_.size()) throw std::logic_error("leaf values loaded before the scan");
+    if (starts_.size() != leaves_.size()) {
+      throw std::logic_error("leaf values loaded before the scan");
+    }
     reading([&](std::istream& in, bool fromHalf, std::streamoff) {
       for (std::size_t i = 0; i < leaves_.size(); ++i) {
         LeafT* leaf = leaves_[i];
@@ -603,7 +605,9 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::Ptr grid, VolumeInfo info
                                        std::shared_ptr<CheckedVdbReader> file,
                                        std::size_t gridIndex, uint64_t wholeGridBytes) {
   const openvdb::CoordBBox active = grid->evalActiveVoxelBoundingBox();
-  if (active.empty()) throw Error(path, fmt::format("grid '{}' has no active voxels", grid->getName()));
+  if (active.empty()) {
+    throw Error(path, fmt::format("grid '{}' has no active voxels", grid->getName()));
+  }
   openvdb::CoordBBox box = active;
   const auto declaredMin = metaValue<openvdb::Vec3i>(*grid, vdb_meta::kIndexMin);
   const auto declaredMax = metaValue<openvdb::Vec3i>(*grid, vdb_meta::kIndexMax);

@@ -564,11 +564,11 @@ TEST(VdbFormat, BandsReadEveryCompressionAsTheWholeGridDoes) {
           accessor.setValue(c, v);
         }
       }
-  std::vector<uint32_t> compressions = {openvdb::io::COMPRESS_NONE, openvdb::io::COMPRESS_ZIP,
-                                        openvdb::io::COMPRESS_ZIP | openvdb::io::COMPRESS_ACTIVE_MASK,
-                                        openvdb::io::COMPRESS_ACTIVE_MASK};
+  using openvdb::io::COMPRESS_ACTIVE_MASK, openvdb::io::COMPRESS_ZIP;
+  std::vector<uint32_t> compressions = {openvdb::io::COMPRESS_NONE, COMPRESS_ZIP,
+                                        COMPRESS_ZIP | COMPRESS_ACTIVE_MASK, COMPRESS_ACTIVE_MASK};
   if (openvdb::io::Archive::hasBloscCompression()) {
-    compressions.push_back(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+    compressions.push_back(openvdb::io::COMPRESS_BLOSC | COMPRESS_ACTIVE_MASK);
   }
   for (const bool half : {false, true}) {
     for (const uint32_t compression : compressions) {
@@ -595,7 +595,9 @@ TEST(VdbFormat, BandsReadEveryCompressionAsTheWholeGridDoes) {
       };
       EXPECT_EQ(at(0, 0, 0), -1000.0f);
       EXPECT_EQ(at(0, 0, 25), 32.0f);
-      if (!half) EXPECT_EQ(at(1, 1, 1), static_cast<float>((13 + 7 + 29) % 3001) - 1000.25f);
+      if (!half) {
+        EXPECT_EQ(at(1, 1, 1), static_cast<float>((13 + 7 + 29) % 3001) - 1000.25f);
+      }
       expectValues(*banded, 6, [&](int64_t i, int64_t j, int64_t k) { return at(i, j, k); });
     }
   }
