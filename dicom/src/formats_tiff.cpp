@@ -1,14 +1,23 @@
-// TIFF stacks through OpenCV: a folder of single-page TIFFs in natural file-name order, or one
-// multi-page TIFF. Grey 8/16-bit integer or 32/64-bit float pages; slabs are decoded on demand.
+// TIFF stacks through libtiff: a folder of single-page TIFFs in natural file-name order, or one
+// multi-page TIFF. Grey 8/16/32-bit integer or 32/64-bit float pages, in strips or tiles, with
+// any compression this libtiff decodes; slabs are decoded on demand. libtiff reports to the
+// open handle, never to stderr, so a damaged file ends in one message that names it.
 
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
+#include <tiffio.h>
 
 #include <algorithm>
 #include <cctype>
+#include <cstdarg>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <limits>
+#include <memory>
+#include <optional>
+#include <span>
 #include <string>
+#include <tuple>
+#include <type_traits>
 #include <vector>
 
 #include <fmt/format.h>
@@ -95,27 +104,279 @@ std::vector<std::string> numberingGaps(const std::vector<std::string>& names) {
   return warnings;
 }
 
-// Checks one decoded page; `what` names the file (and page) in messages.
-void checkPage(const cv::Mat& page, const std::string& what, int width, int height, int type) {
-  if (page.empty()) throw Error(what, "cannot be decoded as an image");
-  if (page.channels() != 1) {
-    throw Error(
-        what, fmt::format("has {} channels: only grey-scale TIFFs are supported", page.channels()));
+// The sample type of a grey page, from its SampleFormat and BitsPerSample.
+std::optional<SampleType> sampleTypeOf(uint16_t format, uint16_t bits) {
+  if (format == SAMPLEFORMAT_UINT || format == SAMPLEFORMAT_VOID) {  // void: unsigned, as libtiff
+    if (bits == 8) return SampleType::UInt8;
+    if (bits == 16) return SampleType::UInt16;
+    if (bits == 32) return SampleType::UInt32;
+  } else if (format == SAMPLEFORMAT_INT) {
+    if (bits == 8) return SampleType::Int8;
+    if (bits == 16) return SampleType::Int16;
+    if (bits == 32) return SampleType::Int32;
+  } else if (format == SAMPLEFORMAT_IEEEFP) {
+    if (bits == 32) return SampleType::Float32;
+    if (bits == 64) return SampleType::Float64;
   }
-  const int depth = page.depth();
-  if (depth != CV_8U && depth != CV_8S && depth != CV_16U && depth != CV_16S && depth != CV_32F &&
-      depth != CV_64F) {
-    throw Error(what, "unsupported sample type: only 8/16-bit integer or float pages");
-  }
-  if (width >= 0 && (page.cols != width || page.rows != height)) {
-    throw Error(what, fmt::format("is {}x{} but the first page is {}x{}: all pages must have the "
-                                  "same size",
-                                  page.cols, page.rows, width, height));
-  }
-  if (type >= 0 && page.type() != type) {
-    throw Error(what, "has a different sample type from the first page");
-  }
+  return std::nullopt;
 }
+
+bool isUnsigned(SampleType type) {
+  return type == SampleType::UInt8 || type == SampleType::UInt16 || type == SampleType::UInt32;
+}
+
+// What one page (TIFF directory) says about its samples and how they lie in the file.
+struct TiffPage {
+  uint32_t width = 0, height = 0;
+  SampleType type = SampleType::UInt8;
+  bool minIsWhite = false;   // 0 is white: unsigned samples are inverted
+  bool flipRows = false;     // Orientation: the file's row 0 is the bottom row
+  bool flipColumns = false;  // and its column 0 the right-hand column
+  bool tiled = false;
+  uint32_t blockWidth = 0, blockHeight = 0;  // a tile; or the width by the rows per strip
+
+  std::size_t blockBytes() const {
+    return std::size_t{blockWidth} * blockHeight * sampleBytes(type);
+  }
+};
+
+// libtiff allocates at most this much at once for one file, and a strip or tile is decoded
+// whole: a page that declares more is refused, not allocated.
+constexpr std::size_t kMaxBlockBytes = std::size_t{1} << 30;
+
+// One TIFF file open through libtiff. libtiff's errors and warnings go to this object
+// (TIFFOpenExt's handlers for this handle), never to stderr: a damaged file gives one message,
+// ours, with libtiff's first error as its reason. Not copyable or movable: libtiff holds `this`.
+class TiffFile {
+ public:
+  explicit TiffFile(std::string path) : path_(std::move(path)) {
+    TIFFOpenOptions* options = TIFFOpenOptionsAlloc();
+    if (options == nullptr) throw Error(path_, "out of memory opening the TIFF");
+    TIFFOpenOptionsSetErrorHandlerExtR(options, &TiffFile::onError, this);
+    TIFFOpenOptionsSetWarningHandlerExtR(options, &TiffFile::onWarning, this);
+    TIFFOpenOptionsSetMaxSingleMemAlloc(options, static_cast<tmsize_t>(kMaxBlockBytes));
+    // "m": read, not memory-mapped, so that a file cut short while open is a read error and
+    // not a SIGBUS.
+    handle_.reset(TIFFOpenExt(path_.c_str(), "rm", options));
+    TIFFOpenOptionsFree(options);  // the handle keeps its own copy of the settings
+    tif_ = handle_.get();
+    if (tif_ == nullptr) fail(path_, "not a readable TIFF");
+    std::error_code ec;
+    fileBytes_ = std::filesystem::file_size(path_, ec);
+    if (ec) throw Error(path_, "cannot read the file's size: " + ec.message());
+  }
+  TiffFile(const TiffFile&) = delete;
+  TiffFile& operator=(const TiffFile&) = delete;
+
+  int64_t pageCount() {
+    error_.clear();
+    const int64_t count = TIFFNumberOfDirectories(tif_);
+    if (!error_.empty() || count < 1) fail(path_, "the chain of pages is damaged");
+    return count;
+  }
+
+  // Makes page `index` current and reads its layout; `what` names the file (and page).
+  TiffPage page(int64_t index, const std::string& what) {
+    error_.clear();
+    const auto current = static_cast<int64_t>(TIFFCurrentDirectory(tif_));
+    bool read = true;
+    if (index == current + 1) {
+      read = TIFFReadDirectory(tif_) == 1;  // the next page: no walk from the first
+    } else if (index != current) {
+      read = TIFFSetDirectory(tif_, static_cast<tdir_t>(index)) == 1;
+    }
+    if (!read) fail(what, "cannot read the page's directory");
+
+    TiffPage page;
+    if (TIFFGetField(tif_, TIFFTAG_IMAGEWIDTH, &page.width) != 1 ||
+        TIFFGetField(tif_, TIFFTAG_IMAGELENGTH, &page.height) != 1 || page.width == 0 ||
+        page.height == 0) {
+      throw Error(what, "has no image size");
+    }
+    uint16_t samples = 1, bits = 1, format = SAMPLEFORMAT_UINT, compression = COMPRESSION_NONE;
+    uint16_t photometric = PHOTOMETRIC_MINISBLACK, orientation = ORIENTATION_TOPLEFT;
+    TIFFGetFieldDefaulted(tif_, TIFFTAG_SAMPLESPERPIXEL, &samples);
+    TIFFGetFieldDefaulted(tif_, TIFFTAG_BITSPERSAMPLE, &bits);
+    TIFFGetFieldDefaulted(tif_, TIFFTAG_SAMPLEFORMAT, &format);
+    TIFFGetFieldDefaulted(tif_, TIFFTAG_COMPRESSION, &compression);
+    TIFFGetFieldDefaulted(tif_, TIFFTAG_ORIENTATION, &orientation);
+    TIFFGetField(tif_, TIFFTAG_PHOTOMETRIC, &photometric);  // absent: grey, min-is-black
+    if (samples != 1) {
+      throw Error(what,
+                  fmt::format("has {} channels: only grey-scale TIFFs are supported", samples));
+    }
+    if (photometric != PHOTOMETRIC_MINISBLACK && photometric != PHOTOMETRIC_MINISWHITE) {
+      throw Error(
+          what, fmt::format("has photometric interpretation {}{}: only grey-scale TIFFs "
+                            "(min-is-black or min-is-white) are supported",
+                            photometric, photometric == PHOTOMETRIC_PALETTE ? " (a palette)" : ""));
+    }
+    const auto type = sampleTypeOf(format, bits);
+    if (!type) {
+      throw Error(what, fmt::format("unsupported sample type ({} bits, sample format {}): only "
+                                    "8/16/32-bit integer or 32/64-bit float pages",
+                                    bits, format));
+    }
+    page.type = *type;
+    page.minIsWhite = photometric == PHOTOMETRIC_MINISWHITE;
+    if (page.minIsWhite && !isUnsigned(page.type)) {
+      throw Error(what, "is min-is-white with signed or float samples, which cannot be inverted");
+    }
+    const uint64_t pageBytes = uint64_t{page.width} * page.height * sampleBytes(page.type);
+    if (compression == COMPRESSION_NONE && pageBytes > fileBytes_) {
+      // Before any allocation: a page's declared size may be anything.
+      throw Error(what, fmt::format("declares {}x{} uncompressed samples of {} bytes ({} bytes), "
+                                    "but the file holds {} bytes",
+                                    page.width, page.height, sampleBytes(page.type), pageBytes,
+                                    fileBytes_));
+    }
+    if (TIFFIsCODECConfigured(compression) != 1) {
+      throw Error(what, fmt::format("uses compression {}, which this build of libtiff cannot "
+                                    "decode",
+                                    compression));
+    }
+    if (orientation < ORIENTATION_TOPLEFT || orientation > ORIENTATION_BOTLEFT) {
+      throw Error(what, fmt::format("has orientation {} (rows and columns swapped, or unknown): "
+                                    "only the four unrotated orientations are supported",
+                                    orientation));
+    }
+    page.flipColumns = orientation == ORIENTATION_TOPRIGHT || orientation == ORIENTATION_BOTRIGHT;
+    page.flipRows = orientation == ORIENTATION_BOTRIGHT || orientation == ORIENTATION_BOTLEFT;
+    page.tiled = TIFFIsTiled(tif_) != 0;
+    if (page.tiled) {
+      if (TIFFGetField(tif_, TIFFTAG_TILEWIDTH, &page.blockWidth) != 1 ||
+          TIFFGetField(tif_, TIFFTAG_TILELENGTH, &page.blockHeight) != 1 || page.blockWidth == 0 ||
+          page.blockHeight == 0) {
+        throw Error(what, "is tiled but has no tile size");
+      }
+    } else {
+      uint32_t rowsPerStrip = page.height;
+      TIFFGetFieldDefaulted(tif_, TIFFTAG_ROWSPERSTRIP, &rowsPerStrip);
+      page.blockWidth = page.width;
+      page.blockHeight = std::clamp<uint32_t>(rowsPerStrip, 1, page.height);
+    }
+    if (page.blockBytes() > kMaxBlockBytes) {
+      throw Error(what, fmt::format("a {} of {} MiB is more than the {} MiB decoded at once",
+                                    page.tiled ? "tile" : "strip", page.blockBytes() >> 20,
+                                    kMaxBlockBytes >> 20));
+    }
+    return page;
+  }
+
+  // Decodes the current page into `out`: width x height floats, row 0 at the top.
+  void decode(const TiffPage& page, const std::string& what, std::span<float> out) {
+    std::vector<uint8_t> block(page.blockBytes());
+    const auto bytes = static_cast<tmsize_t>(block.size());
+    for (uint32_t y0 = 0; y0 < page.height; y0 += page.blockHeight) {
+      const uint32_t rows = std::min(page.blockHeight, page.height - y0);
+      for (uint32_t x0 = 0; x0 < page.width; x0 += page.blockWidth) {
+        const uint32_t columns = std::min(page.blockWidth, page.width - x0);
+        error_.clear();
+        if (page.tiled) {
+          const tmsize_t got =
+              TIFFReadEncodedTile(tif_, TIFFComputeTile(tif_, x0, y0, 0, 0), block.data(), bytes);
+          if (got != bytes) fail(what, fmt::format("cannot decode the tile at ({}, {})", x0, y0));
+        } else {
+          const auto expected =
+              static_cast<tmsize_t>(std::size_t{rows} * page.width * sampleBytes(page.type));
+          const tmsize_t got =
+              TIFFReadEncodedStrip(tif_, TIFFComputeStrip(tif_, y0, 0), block.data(), expected);
+          if (got != expected) {
+            fail(what, fmt::format("cannot decode the strip of rows {} to {}", y0, y0 + rows - 1));
+          }
+        }
+        store(page, block.data(), x0, y0, columns, rows, out);
+      }
+    }
+  }
+
+ private:
+  static int onError(TIFF*, void* self, const char*, const char* format, va_list args) {
+    auto& file = *static_cast<TiffFile*>(self);
+    if (file.error_.empty()) {
+      char text[512];
+      std::vsnprintf(text, sizeof text, format, args);
+      file.error_ = text;
+      // Some of libtiff's messages begin with the file's name, which ours already gives.
+      if (file.error_.starts_with(file.path_ + ": ")) file.error_.erase(0, file.path_.size() + 2);
+      // A failed strip read names scanline (uint32_t)-1: libtiff's "no row yet", not a row.
+      const std::string noRow = " at scanline 4294967295";
+      if (const auto at = file.error_.find(noRow); at != std::string::npos) {
+        file.error_.erase(at, noRow.size());
+      }
+    }
+    return 1;  // handled: libtiff's process-wide handler (stderr) is not called
+  }
+  static int onWarning(TIFF*, void*, const char*, const char*, va_list) {
+    return 1;  // unknown private tags and the like: nothing a reader of the volume can act on
+  }
+
+  [[noreturn]] void fail(const std::string& what, const std::string& problem) const {
+    throw Error(what, error_.empty() ? problem : problem + ": " + error_);
+  }
+
+  // Converts one decoded strip or tile (its top-left `columns` x `rows` lie in the page) into
+  // the page's place in `out`, honouring the orientation and min-is-white.
+  static void store(const TiffPage& page, const uint8_t* block, uint32_t x0, uint32_t y0,
+                    uint32_t columns, uint32_t rows, std::span<float> out) {
+    switch (page.type) {
+      case SampleType::UInt8:
+        return storeAs<uint8_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::Int8:
+        return storeAs<int8_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::UInt16:
+        return storeAs<uint16_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::Int16:
+        return storeAs<int16_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::UInt32:
+        return storeAs<uint32_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::Int32:
+        return storeAs<int32_t>(page, block, x0, y0, columns, rows, out);
+      case SampleType::Float32:
+        return storeAs<float>(page, block, x0, y0, columns, rows, out);
+      case SampleType::Float64:
+        return storeAs<double>(page, block, x0, y0, columns, rows, out);
+    }
+  }
+
+  template <typename T>
+  static void storeAs(const TiffPage& page, const uint8_t* block, uint32_t x0, uint32_t y0,
+                      uint32_t columns, uint32_t rows, std::span<float> out) {
+    bool invert = false;
+    if constexpr (std::is_unsigned_v<T>) invert = page.minIsWhite;
+    const auto sample = [&](const uint8_t* at) {
+      T value;
+      std::memcpy(&value, at, sizeof(T));  // in this machine's byte order: libtiff swabbed it
+      if constexpr (std::is_unsigned_v<T>) {
+        if (invert) value = std::numeric_limits<T>::max() - value;
+      }
+      return static_cast<float>(value);
+    };
+    for (uint32_t r = 0; r < rows; ++r) {
+      const std::size_t y = page.flipRows ? page.height - 1 - (y0 + r) : y0 + r;
+      const uint8_t* in = block + std::size_t{r} * page.blockWidth * sizeof(T);
+      float* row = out.data() + y * page.width;
+      if (!page.flipColumns && !invert) {  // the usual page: a loop the compiler vectorises
+        for (uint32_t c = 0; c < columns; ++c) {
+          T value;
+          std::memcpy(&value, in + std::size_t{c} * sizeof(T), sizeof(T));
+          row[x0 + c] = static_cast<float>(value);
+        }
+      } else {
+        for (uint32_t c = 0; c < columns; ++c) {
+          const std::size_t x = page.flipColumns ? page.width - 1 - (x0 + c) : x0 + c;
+          row[x] = sample(in + std::size_t{c} * sizeof(T));
+        }
+      }
+    }
+  }
+
+  std::string path_;
+  std::unique_ptr<TIFF, void (*)(TIFF*)> handle_{nullptr, TIFFClose};
+  TIFF* tif_ = nullptr;  // handle_.get(), for brevity
+  std::string error_;  // libtiff's first error since the last call began
+  uint64_t fileBytes_ = 0;
+};
 
 class TiffSource final : public VolumeSource {
  public:
@@ -123,10 +384,10 @@ class TiffSource final : public VolumeSource {
   TiffSource(std::string path, std::vector<std::string> files, int64_t pages, Vec3 spacingMm)
       : files_(std::move(files)) {
     multiPage_ = files_.size() == 1 && pages > 1;
-    const cv::Mat first = decodePages(0, 1).front();
-    checkPage(first, files_.front(), -1, -1, -1);
-    type_ = first.type();
-    info_.dims = {first.cols, first.rows, multiPage_ ? pages : static_cast<int64_t>(files_.size())};
+    TiffFile file(files_.front());
+    first_ = file.page(0, files_.front());
+    info_.dims = {first_.width, first_.height,
+                  multiPage_ ? pages : static_cast<int64_t>(files_.size())};
     info_.patientFromIndex =
         Mat4::fromColumns({spacingMm.x, 0, 0}, {0, spacingMm.y, 0}, {0, 0, spacingMm.z}, {});
     detail::checkAffine(info_.patientFromIndex, path);
@@ -135,16 +396,9 @@ class TiffSource final : public VolumeSource {
     info_.sourceFiles = files_;
     std::sort(info_.sourceFiles.begin(), info_.sourceFiles.end());
     info_.description = std::filesystem::path(path).filename().string();
-    info_.integerValues = first.depth() != CV_32F && first.depth() != CV_64F;
-    if (first.depth() == CV_8U) {
-      info_.valueLowerBound = 0;
-      info_.valueUpperBound = 255;
-    } else if (first.depth() == CV_16U) {
-      info_.valueLowerBound = 0;
-      info_.valueUpperBound = 65535;
-    } else if (first.depth() == CV_16S) {
-      info_.valueLowerBound = -32768;
-      info_.valueUpperBound = 32767;
+    info_.integerValues = detail::integerValued(first_.type, 1, 0);
+    if (info_.integerValues) {
+      std::tie(info_.valueLowerBound, info_.valueUpperBound) = detail::sampleTypeRange(first_.type);
     }
   }
 
@@ -155,13 +409,26 @@ class TiffSource final : public VolumeSource {
 
   void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) override {
     checkSlabRequest(info_, firstSlice, sliceCount, out.size());
-    const auto width = static_cast<int>(info_.dims[0]), height = static_cast<int>(info_.dims[1]);
-    const auto pages = decodePages(firstSlice, sliceCount);
+    const auto sliceSamples = static_cast<std::size_t>(info_.sliceSamples());
+    std::optional<TiffFile> multi;
+    if (multiPage_) multi.emplace(files_.front());
     for (int64_t s = 0; s < sliceCount; ++s) {
-      const cv::Mat& page = pages[static_cast<std::size_t>(s)];
-      checkPage(page, pageName(firstSlice + s), width, height, type_);
-      cv::Mat slice(height, width, CV_32F, out.data() + s * info_.sliceSamples());
-      page.convertTo(slice, CV_32F);  // writes into `out` in place: the size and type match
+      const int64_t slice = firstSlice + s;
+      const std::string what = pageName(slice);
+      std::optional<TiffFile> single;
+      if (!multiPage_) single.emplace(files_[static_cast<std::size_t>(slice)]);
+      TiffFile& file = multiPage_ ? *multi : *single;
+      const TiffPage page = file.page(multiPage_ ? slice : 0, what);
+      if (page.width != first_.width || page.height != first_.height) {
+        throw Error(what, fmt::format("is {}x{} but the first page is {}x{}: all pages must have "
+                                      "the same size",
+                                      page.width, page.height, first_.width, first_.height));
+      }
+      if (page.type != first_.type) {
+        throw Error(what, "has a different sample type from the first page");
+      }
+      file.decode(page, what,
+                  out.subspan(static_cast<std::size_t>(s) * sliceSamples, sliceSamples));
     }
   }
 
@@ -171,34 +438,10 @@ class TiffSource final : public VolumeSource {
                       : files_[static_cast<std::size_t>(slice)];
   }
 
-  std::vector<cv::Mat> decodePages(int64_t firstSlice, int64_t count) const {
-    std::vector<cv::Mat> pages;
-    try {
-      if (multiPage_) {
-        if (!cv::imreadmulti(files_.front(), pages, static_cast<int>(firstSlice),
-                             static_cast<int>(count), cv::IMREAD_UNCHANGED)) {
-          pages.clear();
-        }
-      } else {
-        for (int64_t s = 0; s < count; ++s) {
-          pages.push_back(
-              cv::imread(files_[static_cast<std::size_t>(firstSlice + s)], cv::IMREAD_UNCHANGED));
-        }
-      }
-    } catch (const cv::Exception& e) {
-      throw Error(pageName(firstSlice), fmt::format("cannot be decoded: {}", e.what()));
-    }
-    if (static_cast<int64_t>(pages.size()) != count) {
-      throw Error(files_.front(),
-                  fmt::format("cannot decode pages {} to {}", firstSlice, firstSlice + count - 1));
-    }
-    return pages;
-  }
-
   VolumeInfo info_;
   std::vector<std::string> files_;
   bool multiPage_ = false;
-  int type_ = -1;
+  TiffPage first_;
 };
 
 }  // namespace
@@ -223,15 +466,8 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
     return source;
   }
   if (!fs::is_regular_file(path, ec)) throw Error(path, "not a readable file or folder");
-  std::size_t pages = 0;
-  try {
-    pages = cv::imcount(path, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    throw Error(path, fmt::format("not a readable TIFF: {}", e.what()));
-  }
-  if (pages == 0) throw Error(path, "not a readable TIFF");
-  return std::make_unique<TiffSource>(path, std::vector<std::string>{path},
-                                      static_cast<int64_t>(pages), spacingMm);
+  const int64_t pages = TiffFile(path).pageCount();
+  return std::make_unique<TiffSource>(path, std::vector<std::string>{path}, pages, spacingMm);
 }
 
 }  // namespace octoray

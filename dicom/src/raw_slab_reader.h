@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 
 #include "octoray/dicom/formats.h"
 #include "octoray/dicom/volume_source.h"
@@ -37,6 +38,9 @@ uint64_t volumeBytes(const std::array<int64_t, 3>& dims, SampleType type, const 
 // Whether every physical value is an integer: integer samples mapped by an integer scale and
 // offset.
 bool integerValued(SampleType type, double valueScale, double valueOffset);
+
+// The range of a sample type's values: [lowest, highest] for integers, ±infinity for floats.
+std::pair<double, double> sampleTypeRange(SampleType type);
 
 // Throws octoray::Error naming `path` when the index->patient transform is singular or not
 // finite (zero spacing, parallel axes, NaN in a header).

@@ -1,6 +1,6 @@
 #pragma once
 // Helpers shared by the format tests: voxel values from a known function, encoders for every
-// sample type and byte order, gzip/zlib payloads, and whole-volume checks.
+// sample type and byte order, gzip/zlib payloads, hand-made TIFFs, and whole-volume checks.
 
 #include <gtest/gtest.h>
 #include <zlib.h>
@@ -10,9 +10,10 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <functional>
+#include <iterator>
 #include <string>
+#include <vector>
 
 #include "octoray/core/error.h"
 #include "octoray/dicom/formats.h"
@@ -167,6 +168,73 @@ inline void expectErrorMentioning(F&& call, const std::string& mention) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find(mention), std::string::npos) << e.what();
   }
+}
+
+// A TIFF made by hand for the reader's tests, so that no TIFF library writes what libtiff
+// reads: the 8-byte header, one IFD right after it (entries sorted by tag), the entries'
+// out-of-line values, then `blocks` (the strips or tiles, as they lie in the file) in order.
+// The offset and byte-count entries of the blocks are added here.
+struct TiffEntry {
+  uint16_t tag;
+  uint16_t type;  // 3: SHORT, 4: LONG
+  std::vector<uint32_t> values;
+};
+
+inline std::string tiffBytes(std::vector<TiffEntry> entries, const std::vector<std::string>& blocks,
+                             bool tiled, bool bigEndian) {
+  std::string out;
+  const auto put = [&](auto value) {
+    char b[sizeof value];
+    std::memcpy(b, &value, sizeof value);
+    if (bigEndian != (std::endian::native == std::endian::big)) std::reverse(b, b + sizeof value);
+    out.append(b, sizeof value);
+  };
+  const auto valueBytes = [](const TiffEntry& e) {
+    return e.values.size() * (e.type == 3 ? 2 : 4);
+  };
+  std::vector<uint32_t> counts;
+  for (const auto& block : blocks) counts.push_back(static_cast<uint32_t>(block.size()));
+  entries.push_back(
+      {static_cast<uint16_t>(tiled ? 324 : 273), 4, std::vector<uint32_t>(blocks.size())});
+  entries.push_back({static_cast<uint16_t>(tiled ? 325 : 279), 4, counts});
+  std::sort(entries.begin(), entries.end(),
+            [](const TiffEntry& a, const TiffEntry& b) { return a.tag < b.tag; });
+  uint32_t outOfLine = 8 + 2 + 12 * static_cast<uint32_t>(entries.size()) + 4;
+  uint32_t data = outOfLine;
+  for (const auto& e : entries)
+    if (valueBytes(e) > 4) data += static_cast<uint32_t>(valueBytes(e));
+  for (auto& e : entries) {
+    if (e.tag != (tiled ? 324 : 273)) continue;
+    uint32_t at = data;
+    for (std::size_t b = 0; b < blocks.size(); ++b) {
+      e.values[b] = at;
+      at += counts[b];
+    }
+  }
+  out += bigEndian ? "MM" : "II";
+  put(uint16_t{42});
+  put(uint32_t{8});
+  put(static_cast<uint16_t>(entries.size()));
+  for (const auto& e : entries) {
+    put(e.tag);
+    put(e.type);
+    put(static_cast<uint32_t>(e.values.size()));
+    if (valueBytes(e) > 4) {
+      put(outOfLine);
+      outOfLine += static_cast<uint32_t>(valueBytes(e));
+      continue;
+    }
+    const std::size_t start = out.size();
+    for (uint32_t v : e.values) e.type == 3 ? put(static_cast<uint16_t>(v)) : put(v);
+    out.append(4 - (out.size() - start), '\0');
+  }
+  put(uint32_t{0});  // no next page
+  for (const auto& e : entries) {
+    if (valueBytes(e) <= 4) continue;
+    for (uint32_t v : e.values) e.type == 3 ? put(static_cast<uint16_t>(v)) : put(v);
+  }
+  for (const auto& block : blocks) out += block;
+  return out;
 }
 
 inline constexpr SampleType kAllTypes[] = {

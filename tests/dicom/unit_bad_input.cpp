@@ -2,14 +2,16 @@
 // naming the file and the problem, quickly, with nothing else on stderr. Every call runs under
 // a deadline, so a regression to a hang fails instead of stalling the suite.
 //
-// This file: NIfTI, MetaImage and NRRD headers, and DICOM series whose frames, geometry or
-// rescale cannot make a volume. unit_bad_input_dicom_parsing.cpp: DICOM files that must not
-// reach GDCM's parser, or not for long (declared lengths, bytes that are no VR, the vetting
+// This file: NIfTI, MetaImage and NRRD headers, damaged TIFF pages, and DICOM series whose frames,
+// geometry or rescale cannot make a volume. unit_bad_input_dicom_parsing.cpp: DICOM files that must
+// not reach GDCM's parser, or not for long (declared lengths, bytes that are no VR, the vetting
 // child's memory and time limits).
 
 #include <gdcmReader.h>
 #include <gdcmWriter.h>
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include <tuple>
 
@@ -318,6 +320,97 @@ TEST(BadInputNrrd, DataFileMustStayInTheHeadersFolder) {
   writeFile(dir / "h" / "v.nhdr", header("slice%03d.raw 0 2000000000 1"));
   expectCleanError([&] { openNrrd((dir / "h" / "v.nhdr").string()); },
                    {"v.nhdr", "data split over several files is not supported"}, "pattern");
+}
+
+// ---- TIFF -----------------------------------------------------------------------------------
+
+// A 64 x 64 grey page in one strip, made by hand (tiffBytes puts the IFD before the samples, so
+// cutting the file cuts samples, not the directory). `changes` replace or add tags.
+std::string tiffPage(const std::vector<TiffEntry>& changes, std::string samples = {}) {
+  std::vector<TiffEntry> tags = {{256, 4, {64}}, {257, 4, {64}}, {258, 3, {16}}, {259, 3, {1}},
+                                 {262, 3, {1}},  {277, 3, {1}},  {278, 4, {64}}};
+  for (const auto& change : changes) {
+    const auto at = std::find_if(tags.begin(), tags.end(),
+                                 [&](const TiffEntry& t) { return t.tag == change.tag; });
+    if (at != tags.end()) {
+      *at = change;
+    } else {
+      tags.push_back(change);
+    }
+  }
+  if (samples.empty()) samples.assign(64 * 64 * 2, '\x11');
+  return tiffBytes(tags, {samples}, false, false);
+}
+
+// libtiff reports a damaged page through the handle octoray opens it with: one octoray::Error
+// names the file and the problem, and nothing reaches stderr. (Read through OpenCV, a damaged
+// strip printed two lines of OpenCV's own before the error.)
+TEST(BadInputTiff, DamagedPagesEndInOneMessageNamingTheFile) {
+  const auto dir = test::freshTempDir("bad_tiff");
+  const auto readAll = [](const fs::path& path) {
+    auto source = openTiffStack(path.string());
+    std::vector<float> all(
+        static_cast<std::size_t>(source->info().sliceSamples() * source->info().dims[2]));
+    source->readSlab(0, source->info().dims[2], all);
+  };
+  const auto expectRefused = [&](const std::string& name, const std::string& bytes,
+                                 const std::vector<std::string>& mentions) {
+    writeFile(dir / name, bytes);
+    expectCleanError([&] { readAll(dir / name); }, mentions, name);
+  };
+
+  // A stack whose second file is cut 100 bytes short inside its samples; and cut shorter than
+  // its samples could be.
+  fs::create_directories(dir / "cut");
+  writeFile(dir / "cut" / "s000.tif", tiffPage({}));
+  const std::string whole = tiffPage({});
+  writeFile(dir / "cut" / "s001.tif", whole.substr(0, whole.size() - 100));
+  expectCleanError(
+      [&] { readAll(dir / "cut"); },
+      {"s001.tif: cannot decode the strip of rows 0 to 63: Read error; got 8092 bytes, expected "
+       "8192"},
+      "stack cut short");
+  writeFile(dir / "cut" / "s001.tif", whole.substr(0, whole.size() - 3000));
+  expectCleanError([&] { readAll(dir / "cut"); },
+                   {"s001.tif: declares 64x64 uncompressed samples of 2 bytes (8192 bytes), but "
+                    "the file holds 5314 bytes"},
+                   "stack cut shorter");
+
+  expectRefused("deflate.tif", tiffPage({{259, 3, {8}}}, std::string(100, '\x5A')),
+                {"deflate.tif: cannot decode the strip of rows 0 to 63"});
+  expectRefused("junk.tif", std::string("II*\0garbage", 11), {"junk.tif: not a readable TIFF"});
+  expectRefused("codec.tif", tiffPage({{259, 3, {60000}}}),
+                {"codec.tif: uses compression 60000, which this build of libtiff cannot decode"});
+  expectRefused("palette.tif",
+                tiffPage({{258, 3, {8}}, {262, 3, {3}}, {320, 3, std::vector<uint32_t>(768, 0)}},
+                         std::string(64 * 64, '\x01')),
+                {"palette.tif: has photometric interpretation 3 (a palette)"});
+  expectRefused("bits12.tif", tiffPage({{258, 3, {12}}}, std::string(64 * 64 * 3 / 2, '\x01')),
+                {"bits12.tif: unsupported sample type (12 bits"});
+  // Pages that declare 100,000 x 100,000 samples are refused before anything is allocated:
+  // uncompressed, by the file's size; compressed, by the size of the strip to decode.
+  const std::vector<TiffEntry> huge = {{256, 4, {100000}}, {257, 4, {100000}}, {278, 4, {100000}}};
+  expectRefused("huge.tif", tiffPage(huge),
+                {"huge.tif: declares 100000x100000 uncompressed samples of 2 bytes (20000000000 "
+                 "bytes), but the file holds 8314 bytes"});
+  std::vector<TiffEntry> hugeDeflate = huge;
+  hugeDeflate.push_back({259, 3, {8}});
+  expectRefused(
+      "huge-deflate.tif", tiffPage(hugeDeflate),
+      {"huge-deflate.tif: a strip of 19073 MiB is more than the 1024 MiB decoded at once"});
+
+  // A multi-page file whose first page points past the file's end for the next.
+  std::vector<cv::Mat> pages(3, cv::Mat(8, 8, CV_16U, cv::Scalar(7)));
+  ASSERT_TRUE(cv::imwrite((dir / "chain.tif").string(), pages));
+  std::string chain = readFile(dir / "chain.tif");
+  ASSERT_EQ(chain.substr(0, 2), "II");
+  uint32_t ifd = 0;
+  uint16_t entries = 0;
+  std::memcpy(&ifd, chain.data() + 4, 4);
+  std::memcpy(&entries, chain.data() + ifd, 2);
+  const uint32_t past = static_cast<uint32_t>(chain.size()) + 1000;
+  std::memcpy(chain.data() + ifd + 2 + 12 * entries, &past, 4);
+  expectRefused("chain.tif", chain, {"chain.tif: the chain of pages is damaged"});
 }
 
 // ---- DICOM ----------------------------------------------------------------------------------

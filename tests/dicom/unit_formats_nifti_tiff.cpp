@@ -1,6 +1,6 @@
 // NIfTI export and import (checked against VTK's own NIfTI reader as an independent oracle),
-// TIFF stacks written with OpenCV, and openVolume's dispatch, including garbage under every
-// supported extension.
+// TIFF stacks written with OpenCV and by hand, and openVolume's dispatch, including garbage under
+// every supported extension.
 
 #include <gtest/gtest.h>
 
@@ -14,7 +14,9 @@
 #include <algorithm>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <random>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -321,6 +323,124 @@ TEST(TiffStack, MultiPageFloatFile) {
   EXPECT_FALSE(source->info().integerValues);
   expectValues(*source, 4, fractionalRamp);
   expectValues(*source, 1, fractionalRamp);
+}
+
+// The tags of a grey page of `type` for tiffBytes: size, samples, uncompressed.
+std::vector<TiffEntry> greyPageTags(SampleType type, uint32_t width, uint32_t height) {
+  const uint32_t format =
+      type == SampleType::Float32 || type == SampleType::Float64                           ? 3
+      : type == SampleType::Int8 || type == SampleType::Int16 || type == SampleType::Int32 ? 2
+                                                                                           : 1;
+  return {{256, 4, {width}},
+          {257, 4, {height}},
+          {258, 3, {static_cast<uint32_t>(8 * sampleBytes(type))}},
+          {259, 3, {1}},
+          {262, 3, {1}},
+          {277, 3, {1}},
+          {339, 3, {format}}};
+}
+
+// Rows [y0, y0 + rows) and columns [x0, x0 + columns) of a page encoded row by row with
+// `bytes` per sample, as a strip or tile `blockWidth` samples wide and `blockRows` high;
+// outside the page the block holds 0xAB bytes, which the reader must not show.
+std::string cutBlock(const std::string& page, std::size_t width, std::size_t bytes, std::size_t x0,
+                     std::size_t y0, std::size_t columns, std::size_t rows, std::size_t blockWidth,
+                     std::size_t blockRows) {
+  std::string block(blockWidth * blockRows * bytes, '\xAB');
+  for (std::size_t r = 0; r < rows; ++r) {
+    block.replace(r * blockWidth * bytes, columns * bytes, page, ((y0 + r) * width + x0) * bytes,
+                  columns * bytes);
+  }
+  return block;
+}
+
+// Pages made by hand (not by a TIFF library): every sample type, both byte orders, in strips
+// of 5 rows (the last one short) and in 16 x 16 tiles that overhang the page.
+TEST(TiffStack, HandMadePagesInEveryTypeByteOrderAndLayout) {
+  constexpr uint32_t kWidth = 21, kHeight = 13;
+  for (const SampleType type : kAllTypes) {
+    for (const bool bigEndian : {false, true}) {
+      for (const bool tiled : {false, true}) {
+        SCOPED_TRACE(fmt::format("type {}, {} endian, {}", static_cast<int>(type),
+                                 bigEndian ? "big" : "little", tiled ? "tiles" : "strips"));
+        const auto dir = test::freshTempDir("tiff_hand");
+        const std::size_t bytes = sampleBytes(type);
+        const std::string volume = encodeAs(type, {kWidth, kHeight, 2}, bigEndian);
+        for (int k = 0; k < 2; ++k) {
+          const std::string page =
+              volume.substr(k * kWidth * kHeight * bytes, kWidth * kHeight * bytes);
+          auto tags = greyPageTags(type, kWidth, kHeight);
+          std::vector<std::string> blocks;
+          if (tiled) {
+            tags.push_back({322, 4, {16}});
+            tags.push_back({323, 4, {16}});
+            for (uint32_t y0 = 0; y0 < kHeight; y0 += 16) {
+              for (uint32_t x0 = 0; x0 < kWidth; x0 += 16) {
+                blocks.push_back(cutBlock(page, kWidth, bytes, x0, y0, std::min(16u, kWidth - x0),
+                                          std::min(16u, kHeight - y0), 16, 16));
+              }
+            }
+          } else {
+            tags.push_back({278, 4, {5}});
+            for (uint32_t y0 = 0; y0 < kHeight; y0 += 5) {
+              const uint32_t rows = std::min(5u, kHeight - y0);
+              blocks.push_back(cutBlock(page, kWidth, bytes, 0, y0, kWidth, rows, kWidth, rows));
+            }
+          }
+          writeFile(dir / fmt::format("p{}.tif", k), tiffBytes(tags, blocks, tiled, bigEndian));
+        }
+        auto source = openTiffStack(dir.string());
+        EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{kWidth, kHeight, 2}));
+        // Integer pages are bounded by their storage type, whatever these few pages hold.
+        const std::map<SampleType, std::pair<double, double>> bounds = {
+            {SampleType::UInt8, {0, 255}},
+            {SampleType::Int8, {-128, 127}},
+            {SampleType::UInt16, {0, 65535}},
+            {SampleType::Int16, {-32768, 32767}},
+            {SampleType::UInt32, {0, 4294967295.0}},
+            {SampleType::Int32, {-2147483648.0, 2147483647.0}}};
+        EXPECT_EQ(source->info().integerValues, bounds.contains(type));
+        if (bounds.contains(type)) {
+          EXPECT_EQ(source->info().valueLowerBound, bounds.at(type).first);
+          EXPECT_EQ(source->info().valueUpperBound, bounds.at(type).second);
+        }
+        expectValues(*source, 2,
+                     [type](int64_t i, int64_t j, int64_t k) { return expectedAs(type, i, j, k); });
+      }
+    }
+  }
+}
+
+// Orientation flips rows and columns into place; min-is-white inverts unsigned samples. A
+// page with rows and columns swapped, or min-is-white signed samples, is refused by name.
+TEST(TiffStack, OrientationAndMinIsWhiteAreHonoured) {
+  constexpr uint32_t kWidth = 7, kHeight = 5;
+  const std::string page = encode<uint16_t>({kWidth, kHeight, 1}, false);
+  const auto stored = [](int64_t i, int64_t j) {
+    return static_cast<float>(typedValue<uint16_t>(i, j, 0));
+  };
+  const auto open = [&](const std::string& name, uint32_t orientation, uint32_t photometric,
+                        SampleType type = SampleType::UInt16) {
+    const auto dir = test::freshTempDir("tiff_orientation");
+    auto tags = greyPageTags(type, kWidth, kHeight);
+    tags.push_back({274, 3, {orientation}});
+    for (auto& tag : tags)
+      if (tag.tag == 262) tag.values = {photometric};
+    writeFile(dir / name, tiffBytes(tags, {page}, false, false));
+    return openTiffStack((dir / name).string());
+  };
+  const auto expectPage = [&](VolumeSource& source, auto expected) {
+    expectValues(source, 1, [&](int64_t i, int64_t j, int64_t) { return expected(i, j); });
+  };
+  constexpr int64_t w = kWidth - 1, h = kHeight - 1;
+  expectPage(*open("tl.tif", 1, 1), [&](int64_t i, int64_t j) { return stored(i, j); });
+  expectPage(*open("tr.tif", 2, 1), [&](int64_t i, int64_t j) { return stored(w - i, j); });
+  expectPage(*open("br.tif", 3, 1), [&](int64_t i, int64_t j) { return stored(w - i, h - j); });
+  expectPage(*open("bl.tif", 4, 1), [&](int64_t i, int64_t j) { return stored(i, h - j); });
+  expectPage(*open("white.tif", 1, 0), [&](int64_t i, int64_t j) { return 65535 - stored(i, j); });
+  expectErrorMentioning([&] { open("lt.tif", 5, 1); }, "lt.tif: has orientation 5");
+  expectErrorMentioning([&] { open("white16s.tif", 1, 0, SampleType::Int16); },
+                        "white16s.tif: is min-is-white with signed or float samples");
 }
 
 TEST(TiffStack, ColourAndMismatchedPagesThrowNamingTheFile) {
