@@ -191,6 +191,8 @@ void convertSamples(const unsigned char* bytes, std::size_t count, bool swap, do
   }
 }
 
+}  // namespace
+
 void convertSamples(SampleType type, const unsigned char* bytes, std::size_t count, bool swap,
                     double scale, double offset, float* out) {
   switch (type) {
@@ -212,6 +214,8 @@ void convertSamples(SampleType type, const unsigned char* bytes, std::size_t cou
       return convertSamples<double, uint64_t>(bytes, count, swap, scale, offset, out);
   }
 }
+
+namespace {
 
 // Bytes of a compressed stream by position. Inflating only goes forward, so a read before the
 // current position starts again from the beginning of the stream; a volume is normally read
@@ -353,8 +357,8 @@ class RawSource final : public VolumeSource {
       const std::size_t count = std::min(out.size() - done, kChunkSamples);
       const uint64_t streamPos = (firstSample + done) * bytesPerSample;
       readBytes(streamPos, count * bytesPerSample);
-      convertSamples(layout_.sampleType, buffer_.data(), count, swap_, layout_.valueScale,
-                     layout_.valueOffset, out.data() + done);
+      detail::convertSamples(layout_.sampleType, buffer_.data(), count, swap_, layout_.valueScale,
+                             layout_.valueOffset, out.data() + done);
       done += count;
     }
   }

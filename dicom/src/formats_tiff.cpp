@@ -17,7 +17,6 @@
 #include <span>
 #include <string>
 #include <tuple>
-#include <type_traits>
 #include <vector>
 
 #include <fmt/format.h>
@@ -263,9 +262,11 @@ class TiffFile {
     return page;
   }
 
-  // Decodes the current page into `out`: width x height floats, row 0 at the top.
-  void decode(const TiffPage& page, const std::string& what, std::span<float> out) {
-    std::vector<uint8_t> block(page.blockBytes());
+  // Decodes the current page into `out`: width x height floats, row 0 at the top. `block` is
+  // the buffer a strip or tile is decoded into, kept by the caller from page to page.
+  void decode(const TiffPage& page, const std::string& what, std::span<float> out,
+              std::vector<uint8_t>& block) {
+    block.resize(page.blockBytes());
     const auto bytes = static_cast<tmsize_t>(block.size());
     for (uint32_t y0 = 0; y0 < page.height; y0 += page.blockHeight) {
       const uint32_t rows = std::min(page.blockHeight, page.height - y0);
@@ -319,54 +320,21 @@ class TiffFile {
   // the page's place in `out`, honouring the orientation and min-is-white.
   static void store(const TiffPage& page, const uint8_t* block, uint32_t x0, uint32_t y0,
                     uint32_t columns, uint32_t rows, std::span<float> out) {
-    switch (page.type) {
-      case SampleType::UInt8:
-        return storeAs<uint8_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::Int8:
-        return storeAs<int8_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::UInt16:
-        return storeAs<uint16_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::Int16:
-        return storeAs<int16_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::UInt32:
-        return storeAs<uint32_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::Int32:
-        return storeAs<int32_t>(page, block, x0, y0, columns, rows, out);
-      case SampleType::Float32:
-        return storeAs<float>(page, block, x0, y0, columns, rows, out);
-      case SampleType::Float64:
-        return storeAs<double>(page, block, x0, y0, columns, rows, out);
-    }
-  }
-
-  template <typename T>
-  static void storeAs(const TiffPage& page, const uint8_t* block, uint32_t x0, uint32_t y0,
-                      uint32_t columns, uint32_t rows, std::span<float> out) {
-    bool invert = false;
-    if constexpr (std::is_unsigned_v<T>) invert = page.minIsWhite;
-    const auto sample = [&](const uint8_t* at) {
-      T value;
-      std::memcpy(&value, at, sizeof(T));  // in this machine's byte order: libtiff swabbed it
-      if constexpr (std::is_unsigned_v<T>) {
-        if (invert) value = std::numeric_limits<T>::max() - value;
-      }
-      return static_cast<float>(value);
-    };
+    // Min-is-white shows max - value: a scale of -1 and an offset of the type's maximum.
+    const double scale = page.minIsWhite ? -1.0 : 1.0;
+    const double offset = page.minIsWhite ? detail::sampleTypeRange(page.type).second : 0.0;
+    const std::size_t bytes = sampleBytes(page.type);
+    std::vector<float> flipped(page.flipColumns ? columns : 0);
     for (uint32_t r = 0; r < rows; ++r) {
       const std::size_t y = page.flipRows ? page.height - 1 - (y0 + r) : y0 + r;
-      const uint8_t* in = block + std::size_t{r} * page.blockWidth * sizeof(T);
+      const uint8_t* in = block + std::size_t{r} * page.blockWidth * bytes;
       float* row = out.data() + y * page.width;
-      if (!page.flipColumns && !invert) {  // the usual page: a loop the compiler vectorises
-        for (uint32_t c = 0; c < columns; ++c) {
-          T value;
-          std::memcpy(&value, in + std::size_t{c} * sizeof(T), sizeof(T));
-          row[x0 + c] = static_cast<float>(value);
-        }
+      // The samples are in this machine's byte order: libtiff swapped them where needed.
+      if (page.flipColumns) {
+        detail::convertSamples(page.type, in, columns, false, scale, offset, flipped.data());
+        std::reverse_copy(flipped.begin(), flipped.end(), row + (page.width - x0 - columns));
       } else {
-        for (uint32_t c = 0; c < columns; ++c) {
-          const std::size_t x = page.flipColumns ? page.width - 1 - (x0 + c) : x0 + c;
-          row[x] = sample(in + std::size_t{c} * sizeof(T));
-        }
+        detail::convertSamples(page.type, in, columns, false, scale, offset, row + x0);
       }
     }
   }
@@ -412,6 +380,7 @@ class TiffSource final : public VolumeSource {
     const auto sliceSamples = static_cast<std::size_t>(info_.sliceSamples());
     std::optional<TiffFile> multi;
     if (multiPage_) multi.emplace(files_.front());
+    std::vector<uint8_t> block;
     for (int64_t s = 0; s < sliceCount; ++s) {
       const int64_t slice = firstSlice + s;
       const std::string what = pageName(slice);
@@ -427,8 +396,8 @@ class TiffSource final : public VolumeSource {
       if (page.type != first_.type) {
         throw Error(what, "has a different sample type from the first page");
       }
-      file.decode(page, what,
-                  out.subspan(static_cast<std::size_t>(s) * sliceSamples, sliceSamples));
+      file.decode(page, what, out.subspan(static_cast<std::size_t>(s) * sliceSamples, sliceSamples),
+                  block);
     }
   }
 

@@ -39,6 +39,11 @@ uint64_t volumeBytes(const std::array<int64_t, 3>& dims, SampleType type, const 
 // offset.
 bool integerValued(SampleType type, double valueScale, double valueOffset);
 
+// Converts `count` samples of `type` at `bytes` (byte-swapped first where `swap`) to
+// value * scale + offset in `out`.
+void convertSamples(SampleType type, const unsigned char* bytes, std::size_t count, bool swap,
+                    double scale, double offset, float* out);
+
 // The range of a sample type's values: [lowest, highest] for integers, ±infinity for floats.
 std::pair<double, double> sampleTypeRange(SampleType type);
 
