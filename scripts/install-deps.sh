@@ -9,7 +9,7 @@ packages=(
   # fuzzing (scripts/test.sh): clang with libFuzzer and its sanitizer runtimes
   clang libclang-rt-14-dev
   # libraries
-  libgdcm-dev libvtk9-dev libopencv-dev libtiff-dev libopenexr-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
+  libgdcm-dev libvtk9-dev libopencv-dev libtiff-dev libpng-dev libopenexr-dev zlib1g-dev libtbb-dev libzstd-dev liblz4-dev libxxhash-dev
   nlohmann-json3-dev libcli11-dev libfmt-dev libexpat1-dev
   # PACS: DICOMweb over libcurl, DIMSE through DCMTK's network library; OpenVDB in and out
   libcurl4-openssl-dev libdcmtk-dev libopenvdb-dev libboost-iostreams-dev liblog4cplus-dev

@@ -6,15 +6,21 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <fmt/format.h>
+#include <png.h>
 #include <unistd.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
+#include <csetjmp>
+#include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -54,35 +60,123 @@ std::filesystem::path temporaryName(const std::filesystem::path& path) {
          fmt::format(".{}.partial-{}", path.filename().string(), static_cast<long>(::getpid()));
 }
 
+// libpng reports an error by calling onPngError, which must not return: the message is kept
+// for ours and png_longjmp leaves the read. Warnings are not printed either; the first is kept,
+// since it may say why an error follows ("Image width exceeds user limit in IHDR", then
+// "Invalid IHDR data").
+struct PngMessages {
+  char error[256] = "";
+  char warning[256] = "";
+};
+void onPngError(png_structp png, png_const_charp message) {
+  auto* kept = static_cast<PngMessages*>(png_get_error_ptr(png));
+  std::snprintf(kept->error, sizeof kept->error, "%s", message);
+  png_longjmp(png, 1);
+}
+void onPngWarning(png_structp png, png_const_charp message) {
+  auto* kept = static_cast<PngMessages*>(png_get_error_ptr(png));
+  if (kept->warning[0] == '\0') std::snprintf(kept->warning, sizeof kept->warning, "%s", message);
+}
+// libpng's own file reader says only "Read Error" when the file ends.
+void readPngBytes(png_structp png, png_bytep data, png_size_t length) {
+  auto* file = static_cast<std::FILE*>(png_get_io_ptr(png));
+  if (std::fread(data, 1, length, file) != length) {
+    png_error(png, std::ferror(file) != 0 ? "the file cannot be read" : "the file ends early");
+  }
+}
+
+// What a PNG holds once libpng's transforms (below) are set.
+struct PngLayout {
+  uint32_t width = 0, height = 0;
+  int channels = 0, bitDepth = 0;
+  std::size_t rowBytes = 0;
+};
+
+// The two steps that may longjmp out of libpng. Between setjmp and a longjmp they own nothing
+// with a destructor, which a longjmp would skip.
+bool readPngHeader(png_structp png, png_infop info, std::FILE* file, PngLayout& layout) {
+  if (setjmp(png_jmpbuf(png))) return false;
+  png_set_read_fn(png, file, readPngBytes);
+  png_set_user_limits(png, 65536, 65536);  // as the EXR reader's data-window limit
+  png_read_info(png, info);
+  png_set_expand(png);  // palette to RGB, grey below 8 bits to 8, tRNS to an alpha channel
+  if constexpr (std::endian::native == std::endian::little) {
+    if (png_get_bit_depth(png, info) == 16) png_set_swap(png);  // PNG stores big-endian
+  }
+  png_set_interlace_handling(png);
+  png_read_update_info(png, info);
+  layout.width = png_get_image_width(png, info);
+  layout.height = png_get_image_height(png, info);
+  layout.channels = png_get_channels(png, info);
+  layout.bitDepth = png_get_bit_depth(png, info);
+  layout.rowBytes = png_get_rowbytes(png, info);
+  return true;
+}
+bool readPngRows(png_structp png, png_infop info, png_bytepp rows) {
+  if (setjmp(png_jmpbuf(png))) return false;
+  png_read_image(png, rows);
+  png_read_end(png, info);  // to IEND: a file cut after its pixels is refused too
+  return true;
+}
+
 Image readPng(const std::filesystem::path& path) {
-  const cv::Mat m = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  if (m.empty()) throw Error(path.string(), "cannot decode the PNG file");
-  const double scale = m.depth() == CV_16U ? 1.0 / 65535.0 : 1.0 / 255.0;
-  if (m.depth() != CV_8U && m.depth() != CV_16U) {
+  const std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"),
+                                                             std::fclose);
+  if (!file) throw Error(path.string(), "cannot open the image file");
+  PngMessages messages;
+  struct ReadStruct {
+    png_structp png = nullptr;
+    png_infop info = nullptr;
+    ~ReadStruct() {
+      if (png != nullptr) png_destroy_read_struct(&png, &info, nullptr);
+    }
+  } read;
+  read.png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &messages, onPngError, onPngWarning);
+  if (read.png != nullptr) read.info = png_create_info_struct(read.png);
+  if (read.info == nullptr) throw Error(path.string(), "out of memory reading it");
+  png_structp png = read.png;
+  png_infop info = read.info;
+  const auto failed = [&] {
+    return Error(path.string(),
+                 fmt::format("cannot decode the PNG file: {}{}", messages.error,
+                             messages.warning[0] == '\0' ? std::string()
+                                                         : fmt::format(" ({})", messages.warning)));
+  };
+  PngLayout layout;
+  if (!readPngHeader(png, info, file.get(), layout)) throw failed();
+  if (layout.bitDepth != 8 && layout.bitDepth != 16) {
     throw Error(path.string(), "PNG of an unsupported sample depth");
   }
-  Image image(m.cols, m.rows);
+  std::vector<uint8_t> pixels(layout.rowBytes * layout.height);
+  std::vector<png_bytep> rows(layout.height);
+  for (uint32_t y = 0; y < layout.height; ++y) rows[y] = pixels.data() + y * layout.rowBytes;
+  if (!readPngRows(png, info, rows.data())) throw failed();
+
+  const int channels = layout.channels;
+  const double scale = layout.bitDepth == 16 ? 1.0 / 65535.0 : 1.0 / 255.0;
+  Image image(static_cast<int>(layout.width), static_cast<int>(layout.height));
   image.depth.clear();
-  const int channels = m.channels();
   image.hasAlpha = channels == 2 || channels == 4;
-  for (int y = 0; y < m.rows; ++y) {
-    for (int x = 0; x < m.cols; ++x) {
+  for (uint32_t y = 0; y < layout.height; ++y) {
+    for (uint32_t x = 0; x < layout.width; ++x) {
       std::array<double, 4> stored{0, 0, 0, 1 / scale};
       for (int c = 0; c < channels; ++c) {
-        stored[static_cast<std::size_t>(c)] = m.depth() == CV_8U
-                                                  ? m.ptr<uint8_t>(y)[x * channels + c]
-                                                  : m.ptr<uint16_t>(y)[x * channels + c];
+        const std::size_t at = (std::size_t{x} * channels + c) * (layout.bitDepth / 8);
+        if (layout.bitDepth == 8) {
+          stored[static_cast<std::size_t>(c)] = rows[y][at];
+        } else {
+          uint16_t value;
+          std::memcpy(&value, rows[y] + at, sizeof value);
+          stored[static_cast<std::size_t>(c)] = value;
+        }
       }
-      float* p = image.pixel(x, y);
+      float* p = image.pixel(static_cast<int>(x), static_cast<int>(y));
       if (channels <= 2) {  // grey (+ alpha)
         const double a = channels == 2 ? stored[1] : 1 / scale;
         p[0] = p[1] = p[2] = static_cast<float>(stored[0] * scale);
         p[3] = static_cast<float>(a * scale);
-      } else {  // OpenCV keeps BGR(A)
-        p[0] = static_cast<float>(stored[2] * scale);
-        p[1] = static_cast<float>(stored[1] * scale);
-        p[2] = static_cast<float>(stored[0] * scale);
-        p[3] = static_cast<float>(stored[3] * scale);
+      } else {  // RGB(A)
+        for (std::size_t c = 0; c < 4; ++c) p[c] = static_cast<float>(stored[c] * scale);
       }
     }
   }

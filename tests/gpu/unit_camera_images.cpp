@@ -1,11 +1,16 @@
 // Cameras (orbit conventions, rays, JSON), image files (PNG, EXR) and image metrics.
 
 #include <gtest/gtest.h>
+#include <zlib.h>
 #include <nlohmann/json.hpp>
 
+#include <array>
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "octoray/core/error.h"
 #include "octoray/gpu/camera.h"
@@ -152,6 +157,141 @@ TEST(ImageIo, PngRoundTripWithinOneLevel) {
   } catch (const Error& e) {
     EXPECT_EQ(std::string(e.what()), dir.string() + ": is a folder, not an image file");
   }
+}
+
+// A PNG made by hand (zlib for the pixels and the CRCs): no PNG library writes what libpng
+// reads. `rows` are the image rows, each written with filter byte 0; `before` are chunks
+// (type, data) between IHDR and IDAT.
+std::string pngChunk(const std::string& type, const std::string& data) {
+  std::string out;
+  const auto put32 = [&](uint32_t v) {
+    for (int shift = 24; shift >= 0; shift -= 8) out += static_cast<char>((v >> shift) & 0xFF);
+  };
+  put32(static_cast<uint32_t>(data.size()));
+  const std::string typed = type + data;
+  out += typed;
+  put32(static_cast<uint32_t>(
+      crc32(0, reinterpret_cast<const Bytef*>(typed.data()), static_cast<uInt>(typed.size()))));
+  return out;
+}
+
+std::string handPng(uint32_t width, const std::vector<std::string>& rows, int bitDepth,
+                    int colourType,
+                    const std::vector<std::pair<std::string, std::string>>& before = {}) {
+  std::string header;
+  for (const uint32_t v : {width, static_cast<uint32_t>(rows.size())}) {
+    for (int shift = 24; shift >= 0; shift -= 8) header += static_cast<char>((v >> shift) & 0xFF);
+  }
+  header += {static_cast<char>(bitDepth), static_cast<char>(colourType), 0, 0, 0};
+  std::string raw;
+  for (const auto& row : rows) raw += '\0' + row;
+  uLongf size = compressBound(raw.size());
+  std::string packed(size, '\0');
+  EXPECT_EQ(compress2(reinterpret_cast<Bytef*>(packed.data()), &size,
+                      reinterpret_cast<const Bytef*>(raw.data()), raw.size(), 6),
+            Z_OK);
+  packed.resize(size);
+  std::string png = "\x89PNG\r\n\x1a\n" + pngChunk("IHDR", header);
+  for (const auto& [type, data] : before) png += pngChunk(type, data);
+  return png + pngChunk("IDAT", packed) + pngChunk("IEND", "");
+}
+
+void writeBytes(const std::filesystem::path& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary) << bytes;
+}
+
+// Every kind of PNG reads as stored, scaled to [0, 1]: 8- and 16-bit grey, grey + alpha, RGB
+// and RGBA (16-bit samples are big-endian in the file), a palette with transparency, and
+// 1-bit grey (expanded to 0 and 1).
+TEST(ImageIo, PngOfEveryKindReadsAsStored) {
+  const auto dir = freshTempDir("png_kinds");
+  const auto expectPixel = [](const Image& image, int x, int y, std::array<float, 4> rgba) {
+    for (std::size_t c = 0; c < 4; ++c) {
+      EXPECT_FLOAT_EQ(image.pixel(x, y)[c], rgba[c])
+          << "pixel " << x << "," << y << " channel " << c;
+    }
+  };
+  writeBytes(dir / "grey8.png", handPng(2, {"\x10\xF0"}, 8, 0));
+  const Image grey8 = readImage(dir / "grey8.png");
+  EXPECT_FALSE(grey8.hasAlpha);
+  expectPixel(grey8, 1, 0, {240 / 255.f, 240 / 255.f, 240 / 255.f, 1});
+
+  writeBytes(dir / "grey16.png",
+             handPng(1, {std::string("\x12\x34", 2), std::string("\xFF\x00", 2)}, 16, 0));
+  const Image grey16 = readImage(dir / "grey16.png");
+  expectPixel(grey16, 0, 0, {0x1234 / 65535.f, 0x1234 / 65535.f, 0x1234 / 65535.f, 1});
+  expectPixel(grey16, 0, 1, {0xFF00 / 65535.f, 0xFF00 / 65535.f, 0xFF00 / 65535.f, 1});
+
+  writeBytes(dir / "greyalpha.png", handPng(1, {"\x40\x80"}, 8, 4));
+  const Image greyAlpha = readImage(dir / "greyalpha.png");
+  EXPECT_TRUE(greyAlpha.hasAlpha);
+  expectPixel(greyAlpha, 0, 0, {64 / 255.f, 64 / 255.f, 64 / 255.f, 128 / 255.f});
+
+  writeBytes(dir / "rgb8.png", handPng(1, {"\x01\x02\x03"}, 8, 2));
+  expectPixel(readImage(dir / "rgb8.png"), 0, 0, {1 / 255.f, 2 / 255.f, 3 / 255.f, 1});
+
+  writeBytes(dir / "rgba16.png",
+             handPng(1, {std::string("\x00\x01\x01\x00\x80\x00\xFF\xFF", 8)}, 16, 6));
+  const Image rgba16 = readImage(dir / "rgba16.png");
+  EXPECT_TRUE(rgba16.hasAlpha);
+  expectPixel(rgba16, 0, 0, {1 / 65535.f, 256 / 65535.f, 0x8000 / 65535.f, 1});
+
+  // Palette: entry 0 red and half transparent, entry 1 blue and opaque.
+  writeBytes(dir / "palette.png",
+             handPng(2, {std::string("\x00\x01", 2)}, 8, 3,
+                     {{"PLTE", std::string("\xFF\x00\x00\x00\x00\xFF", 6)}, {"tRNS", "\x80"}}));
+  const Image palette = readImage(dir / "palette.png");
+  EXPECT_TRUE(palette.hasAlpha);
+  expectPixel(palette, 0, 0, {1, 0, 0, 128 / 255.f});
+  expectPixel(palette, 1, 0, {0, 0, 1, 1});
+
+  writeBytes(dir / "bits1.png", handPng(8, {"\xA0"}, 1, 0));  // 1010 0000
+  const Image bits1 = readImage(dir / "bits1.png");
+  expectPixel(bits1, 0, 0, {1, 1, 1, 1});
+  expectPixel(bits1, 1, 0, {0, 0, 0, 1});
+  expectPixel(bits1, 2, 0, {1, 1, 1, 1});
+}
+
+// A damaged PNG ends in one octoray::Error naming the file and libpng's reason; libpng prints
+// nothing (through OpenCV it printed "libpng error: ..." on stderr first).
+TEST(ImageIo, DamagedPngEndsInOneMessage) {
+  const auto dir = freshTempDir("png_damaged");
+  const std::string good = handPng(4, {"\x01\x02\x03\x04", "\x05\x06\x07\x08"}, 8, 0);
+  const auto expectRefused = [&](const std::string& name, const std::string& bytes,
+                                 const std::string& reason) {
+    writeBytes(dir / name, bytes);
+    testing::internal::CaptureStderr();
+    try {
+      readImage(dir / name);
+      ADD_FAILURE() << name << " was read";
+    } catch (const Error& e) {
+      EXPECT_EQ(std::string(e.what()),
+                (dir / name).string() + ": cannot decode the PNG file: " + reason);
+    }
+    EXPECT_EQ(testing::internal::GetCapturedStderr(), "") << name;
+  };
+  expectRefused("cut.png", good.substr(0, good.size() - 20), "the file ends early");
+  std::string crc = good;
+  crc[8 + 8 + 13] ^= 0x01;  // IHDR's CRC
+  expectRefused("crc.png", crc, "IHDR: CRC error");
+  // Filter type 7 does not exist.
+  expectRefused(
+      "filter.png",
+      "\x89PNG\r\n\x1a\n" + pngChunk("IHDR", std::string("\0\0\0\1\0\0\0\1\x08\0\0\0\0", 13)) +
+          [] {
+            const std::string row("\x07\x10", 2);
+            uLongf size = compressBound(row.size());
+            std::string packed(size, '\0');
+            compress2(reinterpret_cast<Bytef*>(packed.data()), &size,
+                      reinterpret_cast<const Bytef*>(row.data()), row.size(), 6);
+            packed.resize(size);
+            return pngChunk("IDAT", packed);
+          }() +
+          pngChunk("IEND", ""),
+      "bad adaptive filter value");
+  // 70,000 pixels wide: above the 65,536 limit, refused before any row is allocated.
+  expectRefused("wide.png", handPng(70000, {"\x01"}, 8, 0),
+                "Invalid IHDR data (Image width exceeds user limit in IHDR)");
 }
 
 // The PNG and the EXR of a command are written together or not at all; temporaries are
