@@ -25,6 +25,7 @@
 #include <optional>
 #include <stdexcept>
 #include <streambuf>
+#include <variant>
 #include <vector>
 
 #include <fmt/format.h>
@@ -101,15 +102,18 @@ void scanActiveTiles(const TreeT& tree, ValueScan& scan) {
   for (; tile; ++tile) scan.add(static_cast<double>(*tile));
 }
 
+template <typename LeafT>
+void scanLeaf(const LeafT& leaf, ValueScan& scan) {
+  for (auto it = leaf.cbeginValueOn(); it; ++it) scan.add(static_cast<double>(*it));
+}
+
 template <typename TreeT>
 ValueScan scanActiveValues(const TreeT& tree) {
   openvdb::tree::LeafManager<const TreeT> leaves(tree);
   ValueScan scan = tbb::parallel_reduce(
       leaves.leafRange(), ValueScan{},
       [](const auto& range, ValueScan s) {
-        for (auto leaf = range.begin(); leaf; ++leaf) {
-          for (auto it = leaf->cbeginValueOn(); it; ++it) s.add(static_cast<double>(*it));
-        }
+        for (auto leaf = range.begin(); leaf; ++leaf) scanLeaf(*leaf, s);
         return s;
       },
       [](ValueScan a, const ValueScan& b) {
@@ -138,17 +142,16 @@ class WindowedFileBuffer final : public std::streambuf {
 
   bool isOpen() const { return fd_ >= 0; }
 
-  // The file's size now; -1 if it cannot be read.
-  int64_t size() const {
+  // The file's size and when it was last written, from one fstat.
+  struct Status {
+    int64_t size = 0;
+    int64_t modifiedNs = 0;
+  };
+  std::optional<Status> status() const {
     struct stat st {};
-    return ::fstat(fd_, &st) == 0 ? static_cast<int64_t>(st.st_size) : -1;
-  }
-
-  // When the file was last written, in nanoseconds; -1 if it cannot be read.
-  int64_t modifiedNs() const {
-    struct stat st {};
-    if (::fstat(fd_, &st) != 0) return -1;
-    return int64_t{st.st_mtim.tv_sec} * 1'000'000'000 + st.st_mtim.tv_nsec;
+    if (::fstat(fd_, &st) != 0) return std::nullopt;
+    return Status{static_cast<int64_t>(st.st_size),
+                  int64_t{st.st_mtim.tv_sec} * 1'000'000'000 + st.st_mtim.tv_nsec};
   }
 
   // Forgets the window's bytes (not the position): the next read comes from the file.
@@ -170,9 +173,9 @@ class WindowedFileBuffer final : public std::streambuf {
     if (dir == std::ios_base::beg) {
       base = 0;
     } else if (dir == std::ios_base::end) {
-      struct stat st {};
-      if (::fstat(fd_, &st) != 0) return pos_type(off_type(-1));
-      base = st.st_size;
+      const auto now = status();
+      if (!now) return pos_type(off_type(-1));
+      base = now->size;
     }
     return seekpos(pos_type(base + offset), which);
   }
@@ -216,8 +219,10 @@ class CheckedVdbReader final : public openvdb::io::Archive {
  public:
   explicit CheckedVdbReader(const std::string& path) : path_(path), file_(path), in_(&file_) {
     if (!file_.isOpen()) throw Error(path, "cannot open the file");
-    const auto fileBytes = static_cast<int64_t>(std::filesystem::file_size(path));
-    openedModifiedNs_ = file_.modifiedNs();
+    const auto opened = file_.status();
+    if (!opened) throw Error(path, "cannot read the file's size");
+    const int64_t fileBytes = opened->size;
+    openedModifiedNs_ = opened->modifiedNs;
     in_.exceptions(std::ios::failbit | std::ios::badbit);
     readHeader(in_);
     streamMetadata_ = std::make_shared<openvdb::io::StreamMetadata>();
@@ -362,14 +367,16 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     file_.discardWindow();
     in_.clear();
     const openvdb::io::GridDescriptor& d = entries_[n].descriptor;
-    if (inputHasGridOffsets() && file_.size() < d.getEndPos()) {
+    const auto now = file_.status();
+    if (!now) throw Error(path_, "cannot read the file's size");
+    if (inputHasGridOffsets() && now->size < d.getEndPos()) {
       throw Error(path_, fmt::format("the file is now {} bytes, shorter than when it was opened: "
                                      "grid '{}' ends at byte {}",
-                                     file_.size(), d.gridName(), d.getEndPos()));
+                                     now->size, d.gridName(), d.getEndPos()));
     }
     // Where each leaf starts was recorded from the file as it was: a file written since could
     // put other bytes there.
-    if (file_.modifiedNs() != openedModifiedNs_) {
+    if (now->modifiedNs != openedModifiedNs_) {
       throw Error(path_, "the file was written to after it was opened: open it again");
     }
   }
@@ -504,7 +511,7 @@ class LeafValues {
         starts_.push_back(in.tellg());
         loaded_.push_back(leaf);
         leaf->readBuffers(in, fromHalf);
-        for (auto it = leaf->cbeginValueOn(); it; ++it) scan.add(static_cast<double>(*it));
+        scanLeaf(*leaf, scan);
         release();
       }
     });
@@ -559,14 +566,11 @@ class LeafValues {
 template <typename GridT>
 class VdbSource final : public VolumeSource {
  public:
-  // Whole: `grid` holds every value (leaves null). In bands: `leaves` reads bandSlices at a time.
-  VdbSource(VolumeInfo info, const openvdb::CoordBBox& box, typename GridT::ConstPtr grid,
-            std::unique_ptr<LeafValues<GridT>> leaves, int32_t bandSlices)
-      : info_(std::move(info)),
-        box_(box),
-        grid_(std::move(grid)),
-        leaves_(std::move(leaves)),
-        bandSlices_(bandSlices) {}
+  // The whole grid, every value in memory; or its leaf values, read bandSlices at a time.
+  using Values = std::variant<typename GridT::ConstPtr, std::unique_ptr<LeafValues<GridT>>>;
+
+  VdbSource(VolumeInfo info, const openvdb::CoordBBox& box, Values values, int32_t bandSlices)
+      : info_(std::move(info)), box_(box), values_(std::move(values)), bandSlices_(bandSlices) {}
 
   const VolumeInfo& info() const override { return info_; }
 
@@ -575,27 +579,33 @@ class VdbSource final : public VolumeSource {
     // Slices lie inside the grid's box, so their z fits the grid's 32-bit coordinates.
     const auto z0 = static_cast<int32_t>(box_.min().z() + firstSlice);
     const auto z1 = static_cast<int32_t>(z0 + sliceCount - 1);
-    if (leaves_ && !(band_ && band_->min().z() <= z0 && z1 <= band_->max().z())) {
-      band_.reset();
-      const openvdb::CoordBBox band = bandAround(box_, z0, z1, bandSlices_);
-      readingVdb(info_.sourcePath, [&] { leaves_->load(band.min().z(), band.max().z()); });
-      band_ = band;
+    const GridT* grid = nullptr;
+    if (const auto* whole = std::get_if<typename GridT::ConstPtr>(&values_)) {
+      grid = whole->get();
+    } else {
+      LeafValues<GridT>& leaves = *std::get<std::unique_ptr<LeafValues<GridT>>>(values_);
+      if (!(band_ && band_->min().z() <= z0 && z1 <= band_->max().z())) {
+        band_.reset();
+        const openvdb::CoordBBox band = bandAround(box_, z0, z1, bandSlices_);
+        readingVdb(info_.sourcePath, [&] { leaves.load(band.min().z(), band.max().z()); });
+        band_ = band;
+      }
+      grid = &leaves.grid();
     }
     const openvdb::Coord min(box_.min().x(), box_.min().y(), z0);
     const openvdb::Coord max(box_.max().x(), box_.max().y(), z1);
     // x fastest (LayoutXYZ) is our slab layout; inactive voxels come out as the background.
     openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(openvdb::CoordBBox(min, max),
                                                                   out.data());
-    openvdb::tools::copyToDense(leaves_ ? leaves_->grid() : *grid_, dense);
+    openvdb::tools::copyToDense(*grid, dense);
   }
 
  private:
   VolumeInfo info_;
   openvdb::CoordBBox box_;         // the volume's index box in grid coordinates
-  typename GridT::ConstPtr grid_;  // the whole grid (null when read in bands)
-  std::unique_ptr<LeafValues<GridT>> leaves_;  // null when grid_ is whole
+  Values values_;
   int32_t bandSlices_;
-  std::optional<openvdb::CoordBBox> band_;  // the slices whose leaf values leaves_ holds
+  std::optional<openvdb::CoordBBox> band_;  // the slices whose leaf values are read, in bands
 };
 
 // `grid` is the whole grid (file null), or its topology alone, to be read from `file` in bands.
@@ -653,12 +663,14 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::Ptr grid, VolumeInfo info
       grid->activeVoxelCount() < static_cast<openvdb::Index64>(info.sampleCount());
   const auto background = static_cast<double>(grid->background());
   ValueScan scan;
-  std::unique_ptr<LeafValues<GridT>> leaves;
+  typename VdbSource<GridT>::Values values;
   if (!file) {
     scan = scanActiveValues(grid->tree());
+    values = typename GridT::ConstPtr(std::move(grid));
   } else {
-    leaves = std::make_unique<LeafValues<GridT>>(std::move(file), gridIndex, std::move(grid));
+    auto leaves = std::make_unique<LeafValues<GridT>>(std::move(file), gridIndex, std::move(grid));
     scan = leaves->scan();
+    values = std::move(leaves);
   }
   if (someInactive) scan.add(background);
   info.integerValues = scan.integers;
@@ -666,8 +678,7 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::Ptr grid, VolumeInfo info
     info.valueLowerBound = scan.lo;
     info.valueUpperBound = scan.hi;
   }
-  return std::make_unique<VdbSource<GridT>>(std::move(info), box, std::move(grid),
-                                            std::move(leaves), bandSlices);
+  return std::make_unique<VdbSource<GridT>>(std::move(info), box, std::move(values), bandSlices);
 }
 
 }  // namespace
