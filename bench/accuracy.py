@@ -259,7 +259,7 @@ class Bench:
         for mapper in mappers:
             settings = [(f"{f}vox", ["--step", f * spacing]) for f in (0.25, 0.5, 1.0, 2.0)]
             if mapper == "cpu":
-                settings += [(f"0.5vox-isd2", ["--step", 0.5 * spacing, "--image-sample-distance", 2])]
+                settings += [("0.5vox-isd2", ["--step", 0.5 * spacing, "--image-sample-distance", 2])]
             for setting, extra in settings:
                 name = f"vtk{mapper}-{scene}-{mode}-v{view}-{setting}"
                 exr = self.out / f"{name}.exr"

@@ -14,7 +14,6 @@ above the image").
 """
 
 import argparse
-import csv
 import statistics
 import sys
 from pathlib import Path

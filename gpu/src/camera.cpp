@@ -163,6 +163,15 @@ Camera orbitCamera(const VolumeDomain& domain, const OrbitParameters& orbit) {
     c.orthoHeightMm = 2.0 * radius / orbit.zoom;
     c.fovYDegrees = orbit.fovYDegrees;
   }
+  // A zoom far from 1 widens the field of view to 180 degrees or narrows it to 0 (the
+  // orthographic height to infinity or 0): said of the zoom, not of a field of view not given.
+  const bool framed = orbit.projection == Projection::Perspective
+                          ? c.fovYDegrees > 0 && c.fovYDegrees < 180
+                          : c.orthoHeightMm > 0 && std::isfinite(c.orthoHeightMm);
+  if (!framed) {
+    throw Error("", fmt::format("zoom {:g} is too {} to frame the volume", orbit.zoom,
+                                orbit.zoom < 1 ? "small" : "large"));
+  }
   c.validate();
   return c;
 }

@@ -8,6 +8,10 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <string>
+#include <utility>
+
+#include <fmt/format.h>
 
 #include "octoray/dicom/formats.h"
 #include "octoray/gpu/image_io.h"
@@ -145,6 +149,18 @@ TEST_F(RenderTools, ModesAndErrors) {
   const ProcessResult fov = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--fov", "0"});
   EXPECT_EQ(fov.exitCode, 1);
   EXPECT_NE(fov.err.find("field of view 0 degrees (--fov) must be in (0, 180)"), std::string::npos) << fov.err;
+  // A zoom that no view can frame is named as the zoom (it said "field of view 180"): a
+  // perspective field of view that would reach 180 degrees, an orthographic height that would
+  // overflow.
+  for (const auto& [zoom, projection] :
+       {std::pair{"1e-300", "perspective"}, std::pair{"1e-310", "orthographic"}}) {
+    const ProcessResult r = runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference",
+                                        "--zoom", zoom, "--projection", projection});
+    EXPECT_EQ(r.exitCode, 1) << zoom << " " << projection;
+    EXPECT_NE(r.err.find(fmt::format("zoom {} is too small to frame the volume", zoom)),
+              std::string::npos)
+        << r.err;
+  }
   // GPU-only options with --reference, and --gpu with --reference, are usage errors.
   EXPECT_EQ(runProcess({render, nrrd, "-o", out, "--preset", "bone", "--reference", "--lod-pixels", "2"})
                 .exitCode,

@@ -305,6 +305,18 @@ TEST(PhantomNrrd, FailuresNameTheFileAndLeaveNothing) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("head.raw"), std::string::npos) << e.what();
   }
+  // More data than any test machine's disk: refused by name before anything is written.
+  try {
+    writePhantomNrrd(optionsFor({1048576, 1048576, 1024}), (dir / "huge.nhdr").string());
+    FAIL() << "a phantom of 2 PiB was started";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), (dir / "huge.raw").string());
+    EXPECT_NE(e.reason().find("the 1048576x1048576x1024 phantom needs 2097152.0 GiB, but this "
+                              "file system has "),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir / "huge.raw.partial"));
   // A header name that is a folder: the data is written, the header rename fails, and both
   // the temporary files and the renamed data are removed.
   std::filesystem::create_directory(dir / "taken.nhdr");

@@ -11,9 +11,11 @@
 #include <filesystem>
 #include <future>
 #include <span>
+#include <system_error>
 #include <vector>
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include "octoray/core/error.h"
 #include "octoray/volume/phantom.h"
@@ -106,6 +108,34 @@ std::string nrrdHeader(const PhantomOptions& options, const VolumeInfo& info,
       origin.y, origin.z, dataFileName);
 }
 
+constexpr double kGiB = double(uint64_t{1} << 30);
+
+// Refuses a phantom whose data would not fit on the output's file system, or whose slab
+// buffers (floats, and two int16 copies: 8 bytes per sample) would take more than 3/4 of this
+// machine's memory: one message before anything is written, not a full disk or "out of memory".
+void checkRoomFor(const std::array<int64_t, 3>& dims, int64_t slabSamples, const fs::path& raw) {
+  const double dataBytes = 2.0 * static_cast<double>(dims[0]) * static_cast<double>(dims[1]) *
+                           static_cast<double>(dims[2]);
+  std::error_code ec;
+  const fs::path folder = raw.parent_path().empty() ? fs::path(".") : raw.parent_path();
+  const fs::space_info space = fs::space(folder, ec);
+  if (!ec && dataBytes > static_cast<double>(space.available)) {
+    throw Error(raw.string(), fmt::format("the {}x{}x{} phantom needs {:.1f} GiB, but this file "
+                                          "system has {:.1f} GiB free",
+                                          dims[0], dims[1], dims[2], dataBytes / kGiB,
+                                          static_cast<double>(space.available) / kGiB));
+  }
+  const double bufferBytes = 8.0 * static_cast<double>(slabSamples);
+  const double memoryBytes =
+      static_cast<double>(sysconf(_SC_PHYS_PAGES)) * static_cast<double>(sysconf(_SC_PAGE_SIZE));
+  if (memoryBytes > 0 && bufferBytes > 0.75 * memoryBytes) {
+    throw Error(raw.string(),
+                fmt::format("slices of {}x{} samples need {:.1f} GiB of buffers, "
+                            "more than 3/4 of this machine's {:.1f} GiB",
+                            dims[0], dims[1], bufferBytes / kGiB, memoryBytes / kGiB));
+  }
+}
+
 }  // namespace
 
 void writePhantomNrrd(
@@ -122,12 +152,13 @@ void writePhantomNrrd(
   const fs::path rawTemp = fs::path(rawPath.string() + ".partial");
   TemporaryFiles temporaries({headerTemp, rawTemp});
 
-  const std::unique_ptr<VolumeSource> phantom = makePhantom(options);
+  const std::unique_ptr<VolumeSource> phantom = makePhantom(options);  // checks the options
   const VolumeInfo& info = phantom->info();
   const int64_t sliceSamples = options.dims[0] * options.dims[1];
   const int64_t slices = options.dims[2];
   // Slabs of about 8 M samples (16 MB): one being generated while the previous one is written.
   const int64_t slabSlices = std::clamp<int64_t>((int64_t{1} << 23) / sliceSamples, 1, slices);
+  checkRoomFor(options.dims, slabSlices * sliceSamples, rawPath);
 
   {
     OutputFile raw(rawTemp, rawPath.string());
