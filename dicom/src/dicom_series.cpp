@@ -2,15 +2,18 @@
 
 #include <gdcmReader.h>
 
+#include <tbb/parallel_for.h>
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <map>
 #include <mutex>
 #include <set>
-#include <tbb/parallel_for.h>
+#include <tuple>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "gdcm_support.h"
 #include "octoray/core/error.h"
@@ -88,6 +91,7 @@ struct FileHeader {
   // LUT; a classic file's own for each of its frames), as many as `frames`.
   std::vector<std::vector<SourceWindow>> frameWindows;
   std::string windowProblem;  // why a window it names was left out (the first such), or ""
+  std::string geometryProblem;  // DicomSeries::geometryProblem
 };
 
 bool isSecondaryCapture(const std::string& sopClass) {
@@ -379,6 +383,20 @@ FileHeader readHeader(const std::string& path) {
   for (auto& frame : h.frames) frame.transferSyntaxUid = ts;
   if (h.orientation && h.orientation->size() != 6) h.orientation.reset();
   if (h.pixelSpacing && h.pixelSpacing->size() != 2) h.pixelSpacing.reset();
+  // Present but unusable (not finite numbers, or not as many as needed): said by name, where
+  // the series then has no geometry.
+  if (!h.multiFrame) {
+    for (const auto& [tag, name, count] : {std::tuple{kPixelSpacing, "PixelSpacing", 2},
+                                           std::tuple{kOrientation, "ImageOrientationPatient", 6},
+                                           std::tuple{kPosition, "ImagePositionPatient", 3}}) {
+      const auto values = numberValues(ds, tag);
+      if (!ds.FindDataElement(tag) || (values && static_cast<int>(values->size()) == count))
+        continue;
+      h.geometryProblem = fmt::format("{} '{}' is not {} finite numbers", name,
+                                      fmt::join(stringValues(ds, tag), "\\"), count);
+      break;
+    }
+  }
   return h;
 }
 
@@ -410,7 +428,9 @@ void classify(DicomSeries& s) {
     s.kindReason = "ImageType contains LOCALIZER";
   } else if (!s.hasGeometry) {
     s.kind = SeriesKind::NoGeometry;
-    s.kindReason = "no ImagePositionPatient/ImageOrientationPatient/PixelSpacing per frame";
+    s.kindReason = s.geometryProblem.empty()
+                       ? "no ImagePositionPatient/ImageOrientationPatient/PixelSpacing per frame"
+                       : s.geometryProblem;
   } else if (!s.imageType.empty() && s.imageType[0] == "DERIVED") {
     s.kind = SeriesKind::Derived;
     s.kindReason = "ImageType DERIVED";
@@ -637,6 +657,7 @@ void readSeries(const std::vector<std::string>& files, const ScanOptions& option
       s.pixelSigned = h.pixelSigned;
       s.photometric = h.photometric;
       s.hasGeometry = h.orientation.has_value() && h.pixelSpacing.has_value();
+      s.geometryProblem = h.geometryProblem;
       if (s.hasGeometry) {
         const auto& o = *h.orientation;
         s.rowDirection = {o[0], o[1], o[2]};
@@ -708,8 +729,20 @@ std::size_t defaultSeriesIndex(const DicomScan& scan, const std::string& path) {
     if (!best || rank(s) > rank(scan.series[*best])) best = i;
   }
   if (!best) {
-    throw Error(path, fmt::format("no volumetric image series found ({} series, {} files skipped)",
-                                  scan.series.size(), scan.skipped.size()));
+    // Why, from the first series or the first file left out: one file given by name says
+    // only this.
+    std::string why;
+    if (!scan.series.empty()) {
+      why = fmt::format(": series {} is {} ({})", 1, toString(scan.series.front().kind),
+                        scan.series.front().kindReason);
+    } else if (!scan.skipped.empty()) {
+      why = fmt::format(": {}: {}",
+                        std::filesystem::path(scan.skipped.front().path).filename().string(),
+                        scan.skipped.front().reason);
+    }
+    throw Error(path,
+                fmt::format("no volumetric image series found ({} series, {} files skipped){}",
+                            scan.series.size(), scan.skipped.size(), why));
   }
   return *best;
 }

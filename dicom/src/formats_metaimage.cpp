@@ -21,6 +21,7 @@
 #include <sstream>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "header_text.h"
 #include "octoray/core/error.h"
@@ -209,6 +210,14 @@ std::unique_ptr<VolumeSource> openMetaImage(const std::string& path) {
   for (std::size_t a = 0; a < nDims; ++a) matrix[a * nDims + a] = 1.0;
   if (const char* name = firstMetaField(header, {"ElementSpacing", "ElementSize"})) {
     spacing = metaNumbers(header, name, nDims, false, path);
+    // The geometry stays as written (index a steps |s| mm against its direction); ITK does not
+    // support negative spacing, so a file that has one was likely not written by it.
+    if (std::any_of(spacing.begin(), spacing.end(), [](double s) { return s < 0; })) {
+      info.warnings.push_back(
+          fmt::format("{} {} has a negative value: each such index axis "
+                      "runs against its TransformMatrix direction",
+                      name, fmt::join(spacing, " ")));
+    }
   }
   if (const char* name = firstMetaField(header, {"Offset", "Position", "Origin"})) {
     offset = metaNumbers(header, name, nDims, false, path);

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "octoray/core/error.h"
 #include "octoray/core/text.h"
@@ -168,15 +169,19 @@ class TiffFile {
   TiffFile& operator=(const TiffFile&) = delete;
 
   int64_t pageCount() {
-    error_.clear();
+    clearMessages();
     const int64_t count = TIFFNumberOfDirectories(tif_);
-    if (!error_.empty() || count < 1) fail(path_, "the chain of pages is damaged");
+    // libtiff takes a chain of pages that loops back as ending there, with a warning only: the
+    // pages after it would be lost without a word.
+    if (!error_.empty() || !warning_.empty() || count < 1) {
+      fail(path_, "the chain of pages is damaged");
+    }
     return count;
   }
 
   // Makes page `index` current and reads its layout; `what` names the file (and page).
   TiffPage page(int64_t index, const std::string& what) {
-    error_.clear();
+    clearMessages();
     const auto current = static_cast<int64_t>(TIFFCurrentDirectory(tif_));
     bool read = true;
     if (index == current + 1) {
@@ -272,7 +277,7 @@ class TiffFile {
       const uint32_t rows = std::min(page.blockHeight, page.height - y0);
       for (uint32_t x0 = 0; x0 < page.width; x0 += page.blockWidth) {
         const uint32_t columns = std::min(page.blockWidth, page.width - x0);
-        error_.clear();
+        clearMessages();
         if (page.tiled) {
           const tmsize_t got =
               TIFFReadEncodedTile(tif_, TIFFComputeTile(tif_, x0, y0, 0, 0), block.data(), bytes);
@@ -308,12 +313,26 @@ class TiffFile {
     }
     return 1;  // handled: libtiff's process-wide handler (stderr) is not called
   }
-  static int onWarning(TIFF*, void*, const char*, const char*, va_list) {
-    return 1;  // unknown private tags and the like: nothing a reader of the volume can act on
+  // Warnings (unknown private tags and the like) are kept, not printed: only a failure, or a
+  // damaged chain of pages, says them.
+  static int onWarning(TIFF*, void* self, const char*, const char* format, va_list args) {
+    auto& file = *static_cast<TiffFile*>(self);
+    if (file.warning_.empty()) {
+      char text[512];
+      std::vsnprintf(text, sizeof text, format, args);
+      file.warning_ = text;
+    }
+    return 1;
+  }
+
+  void clearMessages() {
+    error_.clear();
+    warning_.clear();
   }
 
   [[noreturn]] void fail(const std::string& what, const std::string& problem) const {
-    throw Error(what, error_.empty() ? problem : problem + ": " + error_);
+    const std::string& reason = error_.empty() ? warning_ : error_;
+    throw Error(what, reason.empty() ? problem : problem + ": " + reason);
   }
 
   // Converts one decoded strip or tile (its top-left `columns` x `rows` lie in the page) into
@@ -342,7 +361,8 @@ class TiffFile {
   std::string path_;
   std::unique_ptr<TIFF, void (*)(TIFF*)> handle_{nullptr, TIFFClose};
   TIFF* tif_ = nullptr;  // handle_.get(), for brevity
-  std::string error_;  // libtiff's first error since the last call began
+  std::string error_;    // libtiff's first error since the last call began
+  std::string warning_;  // and its first warning
   uint64_t fileBytes_ = 0;
 };
 
@@ -419,10 +439,13 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
   namespace fs = std::filesystem;
   std::error_code ec;
   if (fs::is_directory(path, ec)) {
-    std::vector<std::string> names;
+    std::vector<std::string> names, others;
     for (const auto& entry : fs::directory_iterator(path, ec)) {
+      const std::string name = entry.path().filename().string();
       if (entry.is_regular_file(ec) && hasTiffExtension(entry.path())) {
-        names.push_back(entry.path().filename().string());
+        names.push_back(name);
+      } else if (!name.starts_with(".")) {
+        others.push_back(name);
       }
     }
     if (ec) throw Error(path, "cannot list the folder: " + ec.message());
@@ -432,6 +455,15 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
     for (const auto& name : names) files.push_back((fs::path(path) / name).string());
     auto source = std::make_unique<TiffSource>(path, std::move(files), 1, spacingMm);
     source->addWarnings(numberingGaps(names));
+    if (!others.empty()) {
+      std::sort(others.begin(), others.end(), naturalLess);
+      const std::size_t named = std::min<std::size_t>(others.size(), 3);
+      source->addWarnings({fmt::format(
+          "left out {} {} not a .tif or .tiff file: {}{}", others.size(),
+          others.size() == 1 ? "entry that is" : "entries that are",
+          fmt::join(others.begin(), others.begin() + static_cast<std::ptrdiff_t>(named), ", "),
+          others.size() > named ? ", ..." : "")});
+    }
     return source;
   }
   if (!fs::is_regular_file(path, ec)) throw Error(path, "not a readable file or folder");

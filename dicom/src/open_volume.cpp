@@ -26,22 +26,34 @@ bool isTiffName(const std::string& lowerName) {
   return lowerName.ends_with(".tif") || lowerName.ends_with(".tiff");
 }
 
-// A folder whose visible entries are all TIFF files (at least one). Hidden files such as
-// .DS_Store are ignored; any other file or a subfolder makes it a DICOM folder.
-bool isTiffFolder(const fs::path& folder) {
+// The visible entries of a folder (hidden files such as .DS_Store are not counted): TIFF files,
+// and anything else.
+struct FolderEntries {
+  int tiffFiles = 0;
+  int others = 0;
+};
+FolderEntries folderEntries(const fs::path& folder) {
   std::error_code ec;
-  bool anyTiff = false;
+  FolderEntries entries;
   for (const auto& entry : fs::directory_iterator(folder, ec)) {
     const std::string name = lowerCaseName(entry.path());
     if (name.starts_with(".")) continue;
-    if (!entry.is_regular_file(ec) || !isTiffName(name)) return false;
-    anyTiff = true;
+    if (entry.is_regular_file(ec) && isTiffName(name)) {
+      ++entries.tiffFiles;
+    } else {
+      ++entries.others;
+    }
   }
-  return anyTiff && !ec;
+  return ec ? FolderEntries{} : entries;
 }
 
 std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptions& options) {
   const dicom::DicomScan scan = dicom::scanDicom(path);
+  // A folder of TIFF files with something else beside them (notes, a subfolder) and no DICOM
+  // series: the TIFF stack, which names what it leaves out.
+  if (scan.series.empty() && fs::is_directory(path) && folderEntries(path).tiffFiles > 0) {
+    return openTiffStack(path, options.tiffSpacingMm);
+  }
   if (scan.series.empty()) {
     if (fs::is_regular_file(path) && !scan.skipped.empty()) {
       throw Error(path, "not a supported volume format (" + scan.skipped.front().reason + ")");
@@ -63,7 +75,11 @@ std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOpti
   const auto status = fs::status(path, ec);
   if (ec || !fs::exists(status)) throw Error(path, "no such file or folder");
   if (fs::is_directory(status)) {
-    if (isTiffFolder(path)) return openTiffStack(path, options.tiffSpacingMm);
+    // Only TIFF files: a TIFF stack. Anything else beside them: DICOM discovery first.
+    const FolderEntries entries = folderEntries(path);
+    if (entries.tiffFiles > 0 && entries.others == 0) {
+      return openTiffStack(path, options.tiffSpacingMm);
+    }
     return openDicom(path, options);
   }
   if (!fs::is_regular_file(status)) throw Error(path, "not a regular file or folder");

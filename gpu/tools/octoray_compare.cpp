@@ -48,7 +48,8 @@ int main(int argc, char** argv) {
     try {
       m = compare(a, b);
     } catch (const octoray::Error& e) {
-      throw octoray::Error(pathB, e.reason() + " (against " + pathA + ")");
+      // Both named, in the order given: either may be the wrong one.
+      throw octoray::Error("", fmt::format("{} and {}: {}", pathA, pathB, e.reason()));
     }
     // Depth (EXR Z): finite where a ray hit (isosurfaces) or met material (DVR).
     double depthMean = 0, depthMax = 0;

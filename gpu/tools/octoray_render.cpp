@@ -149,7 +149,7 @@ double otsuIsoValue(const std::string& path, std::optional<TemporaryStore>& temp
 
 // Without --preset and --tf: the default of transfer/defaults.h for the mode and the volume.
 // For an isosurface without --iso: 300 HU for CT, Otsu's threshold of the values otherwise, as
-// the viewer opens it. Says on stderr what it chose.
+// the viewer opens it. Notes what it chose in a.notes.
 void resolveDefaults(Arguments& a, std::optional<TemporaryStore>& temporary) {
   const bool needTf = a.preset.empty() && a.tfPath.empty();
   const bool needIso = a.mode == "iso" && !a.iso;
@@ -157,14 +157,16 @@ void resolveDefaults(Arguments& a, std::optional<TemporaryStore>& temporary) {
   const ValueKind kind = valueKind(a.path);
   if (needIso && kind.hounsfield) {
     a.iso = transfer::kDefaultCtIsoValueHu;
-    fmt::print(stderr, "octoray-render: no --iso: using {:g} HU (bone)\n", *a.iso);
+    a.notes.push_back(fmt::format("no --iso: using {:g} HU (bone)", *a.iso));
   } else if (needIso) {
     if (!(std::isfinite(kind.lo) && std::isfinite(kind.hi))) {
       throw Error(a.path, "--mode iso: the volume has no finite values to choose an isovalue from: give --iso");
     }
     a.iso = otsuIsoValue(a.path, temporary);
-    fmt::print(stderr, "octoray-render: no --iso: using {:.9g}, Otsu's threshold of the values {:g}..{:g} "
-               "(not CT)\n", *a.iso, kind.lo, kind.hi);
+    a.notes.push_back(
+        fmt::format("no --iso: using {:.9g}, Otsu's threshold of the values {:g}..{:g} "
+                    "(not CT)",
+                    *a.iso, kind.lo, kind.hi));
   }
   if (needTf) {
     const transfer::DefaultMode mode = a.mode == "iso"   ? transfer::DefaultMode::Iso
@@ -172,12 +174,12 @@ void resolveDefaults(Arguments& a, std::optional<TemporaryStore>& temporary) {
                                                          : transfer::DefaultMode::Dvr;
     transfer::DefaultTransferFunction chosen =
         transfer::defaultTransferFunction(mode, kind.hounsfield, kind.lo, kind.hi);
-    fmt::print(stderr, "octoray-render: no --preset or --tf: using {} ({}{})\n",
-               chosen.description,
-               kind.guessed ? fmt::format("values from {:g} look like CT, ", kind.lo)
-               : kind.hounsfield ? std::string("CT, ")
-                                 : std::string(),
-               a.mode);
+    a.notes.push_back(fmt::format("no --preset or --tf: using {} ({}{})", chosen.description,
+                                  kind.guessed
+                                      ? fmt::format("values from {:g} look like CT, ", kind.lo)
+                                  : kind.hounsfield ? std::string("CT, ")
+                                                    : std::string(),
+                                  a.mode));
     a.defaultTf = std::move(chosen.tf);
   }
 }
@@ -554,7 +556,9 @@ int run(Arguments a) {
     threadLimit.emplace(tbb::global_control::max_allowed_parallelism,
                         static_cast<std::size_t>(a.threads));
   }
-  return a.reference ? runReference(a) : runGpu(a, temporary);
+  const int status = a.reference ? runReference(a) : runGpu(a, temporary);
+  for (const std::string& note : a.notes) fmt::print(stderr, "octoray-render: {}\n", note);
+  return status;
 }
 
 }  // namespace octoray::render_tool

@@ -385,6 +385,9 @@ TEST(ToolImportBadInput, EmptyFolder) {
                    empty.string());
   const ProcessResult list = runImport({"--list", empty.string(), "--json"});
   EXPECT_EQ(list.exitCode, 1) << "no image series found must exit 1";
+  EXPECT_EQ(list.err, "octoray-import: " + empty.string() +
+                          ": no DICOM image series found (0 files examined, 0 left out): --list "
+                          "lists DICOM series, --inspect reads every format\n");
   expectOnly(outDir, {});
 }
 

@@ -163,6 +163,15 @@ TEST(BadInputMetaImage, FieldsOfTheWrongSizeOrKindAreNamed) {
   expectAffineNear(source->info().patientFromIndex,
                    Mat4::fromColumns({0.5, 0, 0}, {0, 0.5, 0}, {0, 0, 2}, {1, 2, 3}), 1e-12);
   EXPECT_EQ(source->info().warnings, std::vector<std::string>{"unknown field 'MyField'"});
+  // A negative spacing keeps the geometry as written (x runs against its direction) and says
+  // so: ITK does not support it.
+  writeFile(dir / "negative.mhd", header(ok + "ElementSpacing = -1 0.5 0.5\n"));
+  auto negative = openMetaImage((dir / "negative.mhd").string());
+  expectAffineNear(negative->info().patientFromIndex,
+                   Mat4::fromColumns({-1, 0, 0}, {0, 0.5, 0}, {0, 0, 0.5}, {0, 0, 0}), 1e-12);
+  EXPECT_EQ(negative->info().warnings,
+            std::vector<std::string>{"ElementSpacing -1 0.5 0.5 has a negative value: each such "
+                                     "index axis runs against its TransformMatrix direction"});
 }
 
 TEST(BadInputMetaImage, NDimsOutOfRangeIsRefused) {
@@ -411,6 +420,12 @@ TEST(BadInputTiff, DamagedPagesEndInOneMessageNamingTheFile) {
   const uint32_t past = static_cast<uint32_t>(chain.size()) + 1000;
   std::memcpy(chain.data() + ifd + 2 + 12 * entries, &past, 4);
   expectRefused("chain.tif", chain, {"chain.tif: the chain of pages is damaged"});
+  // The first page points back to itself: libtiff counts one page and only warns; the two
+  // pages after it are not silently dropped.
+  std::string loop = chain;
+  std::memcpy(loop.data() + ifd + 2 + 12 * entries, &ifd, 4);
+  expectRefused("loop.tif", loop,
+                {"loop.tif: the chain of pages is damaged: TIFF directory 0 has IFD looping"});
 }
 
 // ---- DICOM ----------------------------------------------------------------------------------
@@ -475,6 +490,42 @@ TEST(BadInputDicom, HugeSpacingOrPositionIsRefusedWhereTheStackIsFormed) {
     expectCleanError([&] { dicom::resolveStack(scan.series[0]); },
                      {scan.series[0].frames.front().path, "the geometry is not usable"}, "resolveStack");
   }
+}
+
+// Geometry attributes that are present but not numbers: the series has no geometry, and the
+// import says which attribute and why (it said only "no volumetric image series found"). Where
+// no series is found at all, the first file left out is named with its reason.
+TEST(BadInputDicom, UnusableGeometryOrAnUnreadableFileIsNamedWhereNoVolumeIsFound) {
+  for (const auto& [tag, value, said] :
+       {std::tuple{gdcm::Tag(0x0028, 0x0030), std::string("nan\\nan"),
+                   std::string("PixelSpacing 'nan\\nan' is not 2 finite numbers")},
+        std::tuple{gdcm::Tag(0x0020, 0x0037), std::string("1\\0\\0\\0\\1"),
+                   std::string("ImageOrientationPatient '1\\0\\0\\0\\1' is not 6 finite "
+                               "numbers")}}) {
+    SCOPED_TRACE(value);
+    const auto dir = test::freshTempDir("bad_dicom_geometry");
+    dicom::SyntheticSeriesSpec spec;
+    spec.sliceCount = 4;
+    const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+    for (const auto& image : written.slices()) rewriteElement(image.path, tag, gdcm::VR::DS, value);
+    expectCleanError([&] { openVolume(dir.string()); },
+                     {dir.string() +
+                      ": no volumetric image series found (1 series, 0 files "
+                      "skipped): series 1 is no-geometry (" +
+                      said + ")"},
+                     value);
+  }
+  const auto dir = test::freshTempDir("bad_dicom_one_file");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 1;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  const std::string path = written.slices().front().path;
+  const std::string bytes = readFile(path);
+  writeFile(path, bytes.substr(0, bytes.size() - 100));
+  expectCleanError([&] { dicom::defaultSeriesIndex(dicom::scanDicom(path), path); },
+                   {"(0 series, 1 files skipped): " + fs::path(path).filename().string() +
+                    ": pixel data declares 512 bytes but the file holds 412 after it"},
+                   "a truncated file");
 }
 
 // One image whose orientation differs is split off into another part of the series; the

@@ -308,6 +308,27 @@ TEST(TiffStack, GapInTheFileNumbersIsAWarning) {
   EXPECT_TRUE(stack("tiff_step2", {10, 12, 14, 16})->info().warnings.empty());
 }
 
+// TIFF files with other entries beside them (notes, a subfolder) and no DICOM series: the TIFF
+// stack, which names what it leaves out (it said "no DICOM image series found").
+TEST(TiffStack, FolderWithOtherEntriesIsTheStackWithAWarning) {
+  const auto dir = test::freshTempDir("tiff_others");
+  for (int k = 0; k < 4; ++k) {
+    ASSERT_TRUE(cv::imwrite((dir / fmt::format("s{}.tif", k)).string(), page16(8, 6, k)));
+  }
+  writeFile(dir / "notes.txt", "acquired on the micro-CT, 20 um\n");
+  fs::create_directories(dir / "thumbnails");
+  writeFile(dir / ".DS_Store", "hidden");
+  auto source = openVolume(dir.string());
+  EXPECT_EQ(source->info().format, "tiff");
+  EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{8, 6, 4}));
+  ASSERT_EQ(source->info().warnings.size(), 1u);
+  EXPECT_EQ(source->info().warnings[0],
+            "left out 2 entries that are not a .tif or .tiff file: notes.txt, thumbnails");
+  expectValues(*source, 4, [](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(typedValue<uint16_t>(i, j, k));
+  });
+}
+
 TEST(TiffStack, MultiPageFloatFile) {
   const auto dir = test::freshTempDir("tiff_multi");
   std::vector<cv::Mat> pages;

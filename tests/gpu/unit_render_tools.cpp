@@ -83,6 +83,15 @@ TEST_F(RenderTools, StoreAndSourceRenderTheSameImage) {
   const auto metrics = nlohmann::json::parse(cmp.out);
   EXPECT_GT(metrics["psnrDb"].get<double>(), 40.0);
   EXPECT_EQ(metrics["nonFiniteA"], 0);
+  // Images of different sizes: both named in the order given, sizes in the same order.
+  gpu::Image small(8, 4);
+  gpu::writePng(small, dir / "small.png");
+  const ProcessResult sizes = runProcess({toolPath("octoray-compare").string(),
+                                          (dir / "small.png").string(), (dir / "a.png").string()});
+  EXPECT_EQ(sizes.exitCode, 1);
+  EXPECT_EQ(sizes.err, fmt::format("octoray-compare: {} and {}: images differ in size: 8x4 and "
+                                   "48x40\n",
+                                   (dir / "small.png").string(), (dir / "a.png").string()));
 }
 
 TEST_F(RenderTools, ModesAndErrors) {
@@ -103,6 +112,14 @@ TEST_F(RenderTools, ModesAndErrors) {
       {render, (dir / "bad.octoray").string(), "-o", out, "--preset", "bone", "--reference"});
   EXPECT_EQ(bad.exitCode, 1);
   EXPECT_NE(bad.err.find("bad.octoray"), std::string::npos) << bad.err;
+  // A store damaged at its start, with no --preset: one line, the store's problem (it said
+  // "not a DICOM file", after a note on the default preset).
+  std::ofstream(dir / "short.octoray") << std::string(26, 'X');
+  const ProcessResult shortStore =
+      runProcess({render, (dir / "short.octoray").string(), "-o", out, "--reference"});
+  EXPECT_EQ(shortStore.exitCode, 1);
+  EXPECT_EQ(shortStore.err, "octoray-render: " + (dir / "short.octoray").string() +
+                                ": header: file too short (26 bytes) to be an octoray store\n");
   // An output that cannot be written: exit 1 naming it, before rendering, and nothing left
   // behind (not the PNG, not a temporary).
   const std::string lonePng = (dir / "lone.png").string();

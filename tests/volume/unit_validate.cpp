@@ -375,6 +375,31 @@ TEST(ValidateStoreInput, AnythingThatIsNotAStoreFailsHeaderWithoutThrowing) {
   }
 }
 
+// What decides between opening a store and importing a volume: the store's magic, or the name
+// *.octoray, so that a store damaged at its start is reported as a damaged store (the renderer
+// said "not a DICOM file" of it).
+TEST(ValidateStoreInput, StoresAreKnownByMagicOrByName) {
+  const fs::path dir = test::freshTempDir("store_or_not");
+  Bytes magicOnly(300, 0);
+  std::memcpy(magicOnly.data(), kStoreMagic, sizeof kStoreMagic);
+  writeBytes((dir / "named-otherwise.bin").string(), magicOnly);
+  writeBytes((dir / "empty.octoray").string(), {});
+  writeBytes((dir / "garbage.OCTORAY").string(), Bytes(26, 'X'));
+  writeBytes((dir / "volume.nrrd").string(), Bytes(26, 'X'));
+  EXPECT_TRUE(isStoreFile(dir / "named-otherwise.bin"));
+  EXPECT_TRUE(isStoreFile(dir / "empty.octoray"));
+  EXPECT_TRUE(isStoreFile(dir / "garbage.OCTORAY"));
+  EXPECT_FALSE(isStoreFile(dir / "volume.nrrd"));
+  EXPECT_FALSE(isStoreFile(dir));
+  EXPECT_FALSE(isStoreFile(dir / "absent.octoray"));
+  try {
+    StoreReader reader((dir / "garbage.OCTORAY").string());
+    ADD_FAILURE() << "garbage opened as a store";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.reason(), "header: file too short (26 bytes) to be an octoray store");
+  }
+}
+
 // --- octoray-validate, run as a user would ---------------------------------------------------
 
 struct ToolRun {

@@ -16,6 +16,7 @@
 
 #include "codec.h"
 #include "octoray/core/error.h"
+#include "octoray/core/text.h"
 #include "octoray/dicom/volume_source.h"
 
 namespace octoray::volume {
@@ -40,6 +41,7 @@ bool readAt(int fd, void* buffer, std::size_t bytes, uint64_t offset) {
 bool isStoreFile(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) return false;
+  if (asciiLower(path.extension().string()) == ".octoray") return true;
   std::ifstream in(path, std::ios::binary);
   char magic[sizeof(kStoreMagic)] = {};
   in.read(magic, sizeof(magic));

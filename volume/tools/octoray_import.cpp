@@ -488,7 +488,15 @@ int run(Arguments a) {
     } else {
       printList(j);
     }
-    return scan.series.empty() ? 1 : 0;
+    if (scan.series.empty()) {
+      // The table (stdout) may be all a script reads; the person at the terminal gets why.
+      fmt::print(stderr,
+                 "octoray-import: {}: no DICOM image series found ({} files examined, {} left "
+                 "out): --list lists DICOM series, --inspect reads every format\n",
+                 a.path, scan.filesExamined, scan.skipped.size());
+      return 1;
+    }
+    return 0;
   }
   if (a.inspect) {
     const json j = inspectJson(a);

@@ -51,6 +51,9 @@ struct Arguments {
   bool frustumCut = false;   // reference: only the leaf bricks in view
   // Set by resolveDefaults() when neither --preset nor --tf was given.
   std::optional<transfer::TransferFunction> defaultTf;
+  // What the defaults chose, said on stderr once the render succeeded (a failure says only
+  // what failed).
+  std::vector<std::string> notes;
 };
 
 // "512x384": two positive integers; throws octoray::Error otherwise.

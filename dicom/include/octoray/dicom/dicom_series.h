@@ -42,6 +42,9 @@ struct DicomSeries {
   std::vector<std::string> imageType;  // ImageType values, e.g. ORIGINAL PRIMARY AXIAL
   SeriesKind kind = SeriesKind::Volume;
   std::string kindReason;              // why it was classified so (for --list)
+  // Why a geometry attribute its first image has could not be used (not finite numbers, or
+  // too few), or "": said where the series has no geometry.
+  std::string geometryProblem;
   bool multiFrame = false;             // frames come from enhanced multi-frame objects
 
   int rows = 0;

@@ -17,8 +17,9 @@
 
 namespace octoray::volume {
 
-// Whether `path` is a regular file that starts with the store's magic bytes (what decides
-// between opening a store and importing a volume; StoreReader verifies the rest).
+// Whether `path` is a regular file that starts with the store's magic bytes, or is named
+// *.octoray (what decides between opening a store and importing a volume; StoreReader verifies
+// the rest, so a damaged store is reported as a store, not as a DICOM file it never was).
 bool isStoreFile(const std::filesystem::path& path);
 
 // One decompressed brick: (B + 2A)^3 samples, x fastest, as stored (UInt16 or Float32).
