@@ -383,15 +383,18 @@ FileHeader readHeader(const std::string& path) {
   for (auto& frame : h.frames) frame.transferSyntaxUid = ts;
   if (h.orientation && h.orientation->size() != 6) h.orientation.reset();
   if (h.pixelSpacing && h.pixelSpacing->size() != 2) h.pixelSpacing.reset();
-  // Present but unusable (not finite numbers, or not as many as needed): said by name, where
-  // the series then has no geometry.
+  // The first of the three a geometry needs that is missing, or present but unusable (not
+  // finite numbers, or not as many as needed): said by name where the series has no geometry.
   if (!h.multiFrame) {
     for (const auto& [tag, name, count] : {std::tuple{kPixelSpacing, "PixelSpacing", 2},
                                            std::tuple{kOrientation, "ImageOrientationPatient", 6},
                                            std::tuple{kPosition, "ImagePositionPatient", 3}}) {
+      if (!ds.FindDataElement(tag)) {
+        h.geometryProblem = fmt::format("no {}", name);
+        break;
+      }
       const auto values = numberValues(ds, tag);
-      if (!ds.FindDataElement(tag) || (values && static_cast<int>(values->size()) == count))
-        continue;
+      if (values && static_cast<int>(values->size()) == count) continue;
       h.geometryProblem = fmt::format("{} '{}' is not {} finite numbers", name,
                                       fmt::join(stringValues(ds, tag), "\\"), count);
       break;

@@ -143,6 +143,7 @@ struct TiffPage {
 // libtiff allocates at most this much at once for one file, and a strip or tile is decoded
 // whole: a page that declares more is refused, not allocated.
 constexpr std::size_t kMaxBlockBytes = std::size_t{1} << 30;
+constexpr uint64_t kMaxPagePixels = uint64_t{1} << 30;
 
 // One TIFF file open through libtiff. libtiff's errors and warnings go to this object
 // (TIFFOpenExt's handlers for this handle), never to stderr: a damaged file gives one message,
@@ -225,6 +226,12 @@ class TiffFile {
     page.minIsWhite = photometric == PHOTOMETRIC_MINISWHITE;
     if (page.minIsWhite && !isUnsigned(page.type)) {
       throw Error(what, "is min-is-white with signed or float samples, which cannot be inverted");
+    }
+    // A page's declared size is refused before it sizes anything: compressed, it can claim any
+    // size in a few bytes. 2^30 pixels is 4 GiB of floats a slice (OpenCV's limit too).
+    if (uint64_t{page.width} * page.height > kMaxPagePixels) {
+      throw Error(what, fmt::format("is {}x{} pixels, more than the {} a page may have", page.width,
+                                    page.height, kMaxPagePixels));
     }
     const uint64_t pageBytes = uint64_t{page.width} * page.height * sampleBytes(page.type);
     if (compression == COMPRESSION_NONE && pageBytes > fileBytes_) {
@@ -359,11 +366,12 @@ class TiffFile {
   }
 
   std::string path_;
-  std::unique_ptr<TIFF, void (*)(TIFF*)> handle_{nullptr, TIFFClose};
-  TIFF* tif_ = nullptr;  // handle_.get(), for brevity
   std::string error_;    // libtiff's first error since the last call began
   std::string warning_;  // and its first warning
   uint64_t fileBytes_ = 0;
+  // Last, so closed first: the handlers that write error_ and warning_ may run until then.
+  std::unique_ptr<TIFF, void (*)(TIFF*)> handle_{nullptr, TIFFClose};
+  TIFF* tif_ = nullptr;  // handle_.get(), for brevity
 };
 
 class TiffSource final : public VolumeSource {
@@ -442,9 +450,10 @@ std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacin
     std::vector<std::string> names, others;
     for (const auto& entry : fs::directory_iterator(path, ec)) {
       const std::string name = entry.path().filename().string();
+      if (name.starts_with(".")) continue;  // .DS_Store, macOS's ._s001.tif
       if (entry.is_regular_file(ec) && hasTiffExtension(entry.path())) {
         names.push_back(name);
-      } else if (!name.starts_with(".")) {
+      } else {
         others.push_back(name);
       }
     }

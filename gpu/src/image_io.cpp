@@ -144,6 +144,11 @@ Image readPng(const std::filesystem::path& path) {
   };
   PngLayout layout;
   if (!readPngHeader(png, info, file.get(), layout)) throw failed();
+  // Before the rows are allocated: a few hundred bytes may declare any size up to the limits.
+  if (uint64_t{layout.width} * layout.height > (uint64_t{1} << 30)) {
+    throw Error(path.string(), fmt::format("is {}x{} pixels, more than the {} read here",
+                                           layout.width, layout.height, uint64_t{1} << 30));
+  }
   if (layout.bitDepth != 8 && layout.bitDepth != 16) {
     throw Error(path.string(), "PNG of an unsupported sample depth");
   }

@@ -359,6 +359,11 @@ TEST(ToolImportBadInput, OutputThatIsAnInputIsRefused) {
        {std::vector<std::string>{"--inspect", store}, {store, "-o", (dir / "again.octoray").string()}}) {
     expectInputError(runImport(args), store + ": is an octoray store already");
   }
+  // A damaged one says what is wrong with it.
+  const std::string damaged = (dir / "damaged.octoray").string();
+  std::ofstream(damaged) << std::string(26, 'X');
+  expectInputError(runImport({"--inspect", damaged}),
+                   damaged + ": header: file too short (26 bytes) to be an octoray store");
 }
 
 // --inspect's text names samples that are not numbers (its JSON always did): the value range

@@ -396,17 +396,20 @@ TEST(BadInputTiff, DamagedPagesEndInOneMessageNamingTheFile) {
                 {"palette.tif: has photometric interpretation 3 (a palette)"});
   expectRefused("bits12.tif", tiffPage({{258, 3, {12}}}, std::string(64 * 64 * 3 / 2, '\x01')),
                 {"bits12.tif: unsupported sample type (12 bits"});
-  // Pages that declare 100,000 x 100,000 samples are refused before anything is allocated:
-  // uncompressed, by the file's size; compressed, by the size of the strip to decode.
-  const std::vector<TiffEntry> huge = {{256, 4, {100000}}, {257, 4, {100000}}, {278, 4, {100000}}};
-  expectRefused("huge.tif", tiffPage(huge),
-                {"huge.tif: declares 100000x100000 uncompressed samples of 2 bytes (20000000000 "
+  // Declared sizes are refused before they size anything: a page over 2^30 pixels; an
+  // uncompressed page larger than its file; a strip over 1 GiB.
+  const auto sized = [](uint32_t side, uint32_t compression) {
+    return tiffPage(
+        {{256, 4, {side}}, {257, 4, {side}}, {278, 4, {side}}, {259, 3, {compression}}});
+  };
+  expectRefused("huge.tif", sized(100000, 8),
+                {"huge.tif: is 100000x100000 pixels, more than the 1073741824 a page may have"});
+  expectRefused("large.tif", sized(30000, 1),
+                {"large.tif: declares 30000x30000 uncompressed samples of 2 bytes (1800000000 "
                  "bytes), but the file holds 8314 bytes"});
-  std::vector<TiffEntry> hugeDeflate = huge;
-  hugeDeflate.push_back({259, 3, {8}});
-  expectRefused(
-      "huge-deflate.tif", tiffPage(hugeDeflate),
-      {"huge-deflate.tif: a strip of 19073 MiB is more than the 1024 MiB decoded at once"});
+  expectRefused("large-deflate.tif", sized(30000, 8),
+                {"large-deflate.tif: a strip of 1716 MiB is more than the 1024 MiB decoded at "
+                 "once"});
 
   // A multi-page file whose first page points past the file's end for the next.
   std::vector<cv::Mat> pages(3, cv::Mat(8, 8, CV_16U, cv::Scalar(7)));
@@ -526,6 +529,23 @@ TEST(BadInputDicom, UnusableGeometryOrAnUnreadableFileIsNamedWhereNoVolumeIsFoun
                    {"(0 series, 1 files skipped): " + fs::path(path).filename().string() +
                     ": pixel data declares 512 bytes but the file holds 412 after it"},
                    "a truncated file");
+}
+
+// A DICOM folder with a preview TIFF beside its images is DICOM; with its images all damaged,
+// it keeps its DICOM error (not a one-slice TIFF "volume" of the preview).
+TEST(BadInputDicom, PreviewTiffBesideDicomImagesIsNotTheVolume) {
+  const auto dir = test::freshTempDir("dicom_with_preview");
+  dicom::SyntheticSeriesSpec spec;
+  spec.sliceCount = 4;
+  const dicom::SyntheticSeries written = dicom::writeSyntheticSeries(dir, spec);
+  ASSERT_TRUE(cv::imwrite((dir / "preview.tif").string(), cv::Mat(8, 8, CV_8U, cv::Scalar(9))));
+  EXPECT_EQ(openVolume(dir.string())->info().format, "dicom");
+  for (const auto& image : written.slices()) {
+    const std::string bytes = readFile(image.path);
+    writeFile(image.path, bytes.substr(0, bytes.size() - 100));
+  }
+  expectCleanError([&] { openVolume(dir.string()); },
+                   {dir.string() + ": no DICOM image series found"}, "damaged, with a preview");
 }
 
 // One image whose orientation differs is split off into another part of the series; the

@@ -440,14 +440,21 @@ TEST(TiffStack, OrientationAndMinIsWhiteAreHonoured) {
   const auto stored = [](int64_t i, int64_t j) {
     return static_cast<float>(typedValue<uint16_t>(i, j, 0));
   };
+  // In one strip; or in 4 x 4 tiles that overhang the page (`tiled`).
   const auto open = [&](const std::string& name, uint32_t orientation, uint32_t photometric,
-                        SampleType type = SampleType::UInt16) {
+                        SampleType type = SampleType::UInt16, bool tiled = false) {
     const auto dir = test::freshTempDir("tiff_orientation");
     auto tags = greyPageTags(type, kWidth, kHeight);
     tags.push_back({274, 3, {orientation}});
     for (auto& tag : tags)
       if (tag.tag == 262) tag.values = {photometric};
-    writeFile(dir / name, tiffBytes(tags, {page}, false, false));
+    std::vector<std::string> blocks{page};
+    if (tiled) {
+      tags.push_back({322, 4, {16}});
+      tags.push_back({323, 4, {16}});
+      blocks = {cutBlock(page, kWidth, 2, 0, 0, kWidth, kHeight, 16, 16)};
+    }
+    writeFile(dir / name, tiffBytes(tags, blocks, tiled, false));
     return openTiffStack((dir / name).string());
   };
   const auto expectPage = [&](VolumeSource& source, auto expected) {
@@ -459,6 +466,9 @@ TEST(TiffStack, OrientationAndMinIsWhiteAreHonoured) {
   expectPage(*open("br.tif", 3, 1), [&](int64_t i, int64_t j) { return stored(w - i, h - j); });
   expectPage(*open("bl.tif", 4, 1), [&](int64_t i, int64_t j) { return stored(i, h - j); });
   expectPage(*open("white.tif", 1, 0), [&](int64_t i, int64_t j) { return 65535 - stored(i, j); });
+  // A tile larger than the page, flipped both ways and inverted.
+  expectPage(*open("br-white-tiled.tif", 3, 0, SampleType::UInt16, true),
+             [&](int64_t i, int64_t j) { return 65535 - stored(w - i, h - j); });
   expectErrorMentioning([&] { open("lt.tif", 5, 1); }, "lt.tif: has orientation 5");
   expectErrorMentioning([&] { open("white16s.tif", 1, 0, SampleType::Int16); },
                         "white16s.tif: is min-is-white with signed or float samples");

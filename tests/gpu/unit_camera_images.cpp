@@ -289,6 +289,19 @@ TEST(ImageIo, DamagedPngEndsInOneMessage) {
           }() +
           pngChunk("IEND", ""),
       "bad adaptive filter value");
+  // 60,000 x 60,000 in a few bytes: refused before its rows are allocated.
+  writeBytes(dir / "vast.png",
+             "\x89PNG\r\n\x1a\n" +
+                 pngChunk("IHDR", std::string("\0\0\xEA\x60\0\0\xEA\x60\x08\0\0\0\0", 13)) +
+                 pngChunk("IDAT", "x") + pngChunk("IEND", ""));
+  try {
+    readImage(dir / "vast.png");
+    ADD_FAILURE() << "vast.png was read";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              (dir / "vast.png").string() +
+                  ": is 60000x60000 pixels, more than the 1073741824 read here");
+  }
   // 70,000 pixels wide: above the 65,536 limit, refused before any row is allocated.
   expectRefused("wide.png", handPng(70000, {"\x01"}, 8, 0),
                 "Invalid IHDR data (Image width exceeds user limit in IHDR)");

@@ -126,9 +126,9 @@ void checkRoomFor(const std::array<int64_t, 3>& dims, int64_t slabSamples, const
                                           static_cast<double>(space.available) / kGiB));
   }
   const double bufferBytes = 8.0 * static_cast<double>(slabSamples);
-  const double memoryBytes =
-      static_cast<double>(sysconf(_SC_PHYS_PAGES)) * static_cast<double>(sysconf(_SC_PAGE_SIZE));
-  if (memoryBytes > 0 && bufferBytes > 0.75 * memoryBytes) {
+  const long pages = sysconf(_SC_PHYS_PAGES), pageSize = sysconf(_SC_PAGE_SIZE);
+  const double memoryBytes = static_cast<double>(pages) * static_cast<double>(pageSize);
+  if (pages > 0 && pageSize > 0 && bufferBytes > 0.75 * memoryBytes) {
     throw Error(raw.string(),
                 fmt::format("slices of {}x{} samples need {:.1f} GiB of buffers, "
                             "more than 3/4 of this machine's {:.1f} GiB",

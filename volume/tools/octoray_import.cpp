@@ -473,6 +473,7 @@ void retrieveUrlInput(Arguments& a) {
 int run(Arguments a) {
   retrieveUrlInput(a);
   if (volume::isStoreFile(a.path)) {
+    volume::StoreReader{a.path};  // a damaged store (or not one, named so) says what is wrong
     throw Error(a.path, "is an octoray store already: octoray-view and octoray-render open it, "
                         "octoray-validate checks it");
   }
