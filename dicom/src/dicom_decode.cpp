@@ -107,6 +107,17 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
       throw Error(path, fmt::format("BitsStored {} exceeds BitsAllocated {}", *stored,
                                     f.bitsAllocated));
     }
+    // A sign that is neither, or a high bit outside the allocated bits: no reading of the
+    // samples is the file's (PixelRepresentation 7 read as unsigned turned a signed CT's
+    // negative HU into large positive values, silently).
+    if (representation && *representation > 1) {
+      throw Error(path, fmt::format("PixelRepresentation {} is neither 0 (unsigned) nor 1 (signed)",
+                                    *representation));
+    }
+    if (high && *high >= f.bitsAllocated) {
+      throw Error(path,
+                  fmt::format("HighBit {} is outside BitsAllocated {}", *high, f.bitsAllocated));
+    }
     if (stored && high && *stored >= 1 && *stored <= f.bitsAllocated && *high < f.bitsAllocated &&
         *high >= *stored - 1) {
       f.bitsStored = *stored;

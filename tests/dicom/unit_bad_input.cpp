@@ -584,6 +584,17 @@ TEST(BadInputDicom, BitsAllocatedThatDoesNotDescribeThePixelDataIsRefused) {
   expectCleanError([&] { dicom::decodeDicomFile(damaged.string()); },
                    {damaged.string(), "the header does not describe the data"}, "decodeDicomFile");
   EXPECT_NO_THROW(dicom::decodeDicomFile(written.slices()[0].path.string()));
+  // A sign that is neither, or a high bit beyond the allocated bits: refused by name (both
+  // were read, the first as unsigned samples).
+  const fs::path sign = written.slices()[2].path;
+  rewriteElement(sign, gdcm::Tag(0x0028, 0x0103), gdcm::VR::US, le16(7));
+  expectCleanError([&] { dicom::decodeDicomFile(sign.string()); },
+                   {sign.string(), "PixelRepresentation 7 is neither 0 (unsigned) nor 1 (signed)"},
+                   "PixelRepresentation");
+  rewriteElement(sign, gdcm::Tag(0x0028, 0x0103), gdcm::VR::US, le16(1));
+  rewriteElement(sign, gdcm::Tag(0x0028, 0x0102), gdcm::VR::US, le16(40));
+  expectCleanError([&] { dicom::decodeDicomFile(sign.string()); },
+                   {sign.string(), "HighBit 40 is outside BitsAllocated 16"}, "HighBit");
 }
 
 // RescaleSlope 0 turns every pixel into the intercept, NaN every pixel into NaN: the file is
