@@ -3,9 +3,7 @@
 // single DICOM files without an extension and DICOMDIRs.
 
 #include <algorithm>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 
 #include <fmt/format.h>
 
@@ -50,13 +48,6 @@ FolderEntries folderEntries(const fs::path& folder) {
   return ec ? FolderEntries{} : entries;
 }
 
-// Whether a file is DICOM Part 10: "DICM" after its 128-byte preamble.
-bool isDicomPart10(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  char preamble[132] = {};
-  return in.read(preamble, sizeof preamble) && std::memcmp(preamble + 128, "DICM", 4) == 0;
-}
-
 std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptions& options) {
   const dicom::DicomScan scan = dicom::scanDicom(path);
   // A folder of TIFF files with something else beside them (notes, a subfolder), no DICOM
@@ -64,7 +55,7 @@ std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptio
   // folder whose files are all damaged keeps its DICOM error, preview TIFFs or not.
   if (scan.series.empty() && fs::is_directory(path) && folderEntries(path).tiffFiles > 0 &&
       std::none_of(scan.skipped.begin(), scan.skipped.end(),
-                   [](const dicom::SkippedFile& f) { return isDicomPart10(f.path); })) {
+                   [](const dicom::SkippedFile& f) { return dicom::isDicomPart10(f.path); })) {
     return openTiffStack(path, options.tiffSpacingMm);
   }
   if (scan.series.empty()) {

@@ -3,15 +3,14 @@
 // Exit status: 0 when every check passes, 1 when any fails, 2 on usage errors.
 #include <CLI/CLI.hpp>
 
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include <fmt/format.h>
 
 #include "cli_checks.h"
 #include "cli_support.h"
+#include "octoray/dicom/dicom_series.h"
 #include "octoray/volume/store_reader.h"
 #include "octoray/volume/store_validator.h"
 
@@ -30,10 +29,7 @@ bool isDicomInput(const fs::path& path) {
   std::string name = path.filename().string();
   std::transform(name.begin(), name.end(), name.begin(),
                  [](unsigned char c) { return std::toupper(c); });
-  if (name == "DICOMDIR") return true;
-  std::ifstream in(path, std::ios::binary);
-  char preamble[132] = {};
-  return in.read(preamble, sizeof preamble) && std::memcmp(preamble + 128, "DICM", 4) == 0;
+  return name == "DICOMDIR" || octoray::dicom::isDicomPart10(path);
 }
 
 nlohmann::json toJson(const ValidationReport& report) {

@@ -93,6 +93,10 @@ struct PatientIdentity {
 };
 PatientIdentity readPatientIdentity(const std::string& file);
 
+// Whether `file` is a DICOM Part 10 file: "DICM" after its 128-byte preamble. Reads 132 bytes;
+// false for anything that cannot be read.
+bool isDicomPart10(const std::filesystem::path& file);
+
 // Scans `path`: a folder (recursively), a DICOMDIR file, or a single DICOM file. A folder
 // holding a DICOMDIR is still searched file by file, and the DICOMDIR's list is checked
 // against what is present. Throws octoray::Error only when `path` itself cannot be read.
