@@ -306,10 +306,7 @@ class TiffFile {
  private:
   static int onError(TIFF*, void* self, const char*, const char* format, va_list args) {
     auto& file = *static_cast<TiffFile*>(self);
-    if (file.error_.empty()) {
-      char text[512];
-      std::vsnprintf(text, sizeof text, format, args);
-      file.error_ = text;
+    if (keepFirst(file.error_, format, args)) {
       // Some of libtiff's messages begin with the file's name, which ours already gives.
       if (file.error_.starts_with(file.path_ + ": ")) file.error_.erase(0, file.path_.size() + 2);
       // A failed strip read names scanline (uint32_t)-1: libtiff's "no row yet", not a row.
@@ -323,13 +320,16 @@ class TiffFile {
   // Warnings (unknown private tags and the like) are kept, not printed: only a failure, or a
   // damaged chain of pages, says them.
   static int onWarning(TIFF*, void* self, const char*, const char* format, va_list args) {
-    auto& file = *static_cast<TiffFile*>(self);
-    if (file.warning_.empty()) {
-      char text[512];
-      std::vsnprintf(text, sizeof text, format, args);
-      file.warning_ = text;
-    }
+    keepFirst(static_cast<TiffFile*>(self)->warning_, format, args);
     return 1;
+  }
+  // Formats libtiff's message into `kept` unless it holds one already; true when it did.
+  static bool keepFirst(std::string& kept, const char* format, va_list args) {
+    if (!kept.empty()) return false;
+    char text[512];
+    std::vsnprintf(text, sizeof text, format, args);
+    kept = text;
+    return true;
   }
 
   void clearMessages() {
@@ -443,39 +443,50 @@ class TiffSource final : public VolumeSource {
 
 }  // namespace
 
-std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacingMm) {
+TiffFolder listTiffFolder(const std::string& folder) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (fs::is_directory(path, ec)) {
-    std::vector<std::string> names, others;
-    for (const auto& entry : fs::directory_iterator(path, ec)) {
-      const std::string name = entry.path().filename().string();
-      if (name.starts_with(".")) continue;  // .DS_Store, macOS's ._s001.tif
-      if (entry.is_regular_file(ec) && hasTiffExtension(entry.path())) {
-        names.push_back(name);
-      } else {
-        others.push_back(name);
-      }
+  TiffFolder listed{folder, {}, {}};
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.starts_with(".")) continue;  // .DS_Store, macOS's ._s001.tif
+    if (entry.is_regular_file(ec) && hasTiffExtension(entry.path())) {
+      listed.tiffNames.push_back(name);
+    } else {
+      listed.otherNames.push_back(name);
     }
-    if (ec) throw Error(path, "cannot list the folder: " + ec.message());
-    if (names.empty()) throw Error(path, "the folder holds no .tif or .tiff files");
-    std::sort(names.begin(), names.end(), naturalLess);
-    std::vector<std::string> files;
-    for (const auto& name : names) files.push_back((fs::path(path) / name).string());
-    auto source = std::make_unique<TiffSource>(path, std::move(files), 1, spacingMm);
-    source->addWarnings(numberingGaps(names));
-    if (!others.empty()) {
-      std::sort(others.begin(), others.end(), naturalLess);
-      const std::size_t named = std::min<std::size_t>(others.size(), 3);
-      source->addWarnings({fmt::format(
-          "left out {} {} not a .tif or .tiff file: {}{}", others.size(),
-          others.size() == 1 ? "entry that is" : "entries that are",
-          fmt::join(others.begin(), others.begin() + static_cast<std::ptrdiff_t>(named), ", "),
-          others.size() > named ? ", ..." : "")});
-    }
-    return source;
   }
-  if (!fs::is_regular_file(path, ec)) throw Error(path, "not a readable file or folder");
+  if (ec) throw Error(folder, "cannot list the folder: " + ec.message());
+  std::sort(listed.tiffNames.begin(), listed.tiffNames.end(), naturalLess);
+  std::sort(listed.otherNames.begin(), listed.otherNames.end(), naturalLess);
+  return listed;
+}
+
+std::unique_ptr<VolumeSource> openTiffStack(const TiffFolder& folder, Vec3 spacingMm) {
+  const auto& names = folder.tiffNames;
+  if (names.empty()) throw Error(folder.path, "the folder holds no .tif or .tiff files");
+  std::vector<std::string> files;
+  for (const auto& name : names)
+    files.push_back((std::filesystem::path(folder.path) / name).string());
+  auto source = std::make_unique<TiffSource>(folder.path, std::move(files), 1, spacingMm);
+  source->addWarnings(numberingGaps(names));
+  if (const auto& others = folder.otherNames; !others.empty()) {
+    const std::size_t named = std::min<std::size_t>(others.size(), 3);
+    source->addWarnings({fmt::format(
+        "left out {} {} not a .tif or .tiff file: {}{}", others.size(),
+        others.size() == 1 ? "entry that is" : "entries that are",
+        fmt::join(others.begin(), others.begin() + static_cast<std::ptrdiff_t>(named), ", "),
+        others.size() > named ? ", ..." : "")});
+  }
+  return source;
+}
+
+std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacingMm) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    return openTiffStack(listTiffFolder(path), spacingMm);
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw Error(path, "not a readable file or folder");
   const int64_t pages = TiffFile(path).pageCount();
   return std::make_unique<TiffSource>(path, std::vector<std::string>{path}, pages, spacingMm);
 }

@@ -27,36 +27,17 @@ bool isTiffName(const std::string& lowerName) {
   return lowerName.ends_with(".tif") || lowerName.ends_with(".tiff");
 }
 
-// The visible entries of a folder (hidden files such as .DS_Store are not counted): TIFF files,
-// and anything else.
-struct FolderEntries {
-  int tiffFiles = 0;
-  int others = 0;
-};
-FolderEntries folderEntries(const fs::path& folder) {
-  std::error_code ec;
-  FolderEntries entries;
-  for (const auto& entry : fs::directory_iterator(folder, ec)) {
-    const std::string name = lowerCaseName(entry.path());
-    if (name.starts_with(".")) continue;
-    if (entry.is_regular_file(ec) && isTiffName(name)) {
-      ++entries.tiffFiles;
-    } else {
-      ++entries.others;
-    }
-  }
-  return ec ? FolderEntries{} : entries;
-}
-
-std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptions& options) {
+// DICOM discovery of `path`; `folder` is its listing where it is a folder.
+std::unique_ptr<VolumeSource> openDicom(const std::string& path, const OpenOptions& options,
+                                        const TiffFolder* folder = nullptr) {
   const dicom::DicomScan scan = dicom::scanDicom(path);
   // A folder of TIFF files with something else beside them (notes, a subfolder), no DICOM
   // series and no DICOM file left out: the TIFF stack, which names what it leaves out. A DICOM
   // folder whose files are all damaged keeps its DICOM error, preview TIFFs or not.
-  if (scan.series.empty() && fs::is_directory(path) && folderEntries(path).tiffFiles > 0 &&
+  if (scan.series.empty() && folder && !folder->tiffNames.empty() &&
       std::none_of(scan.skipped.begin(), scan.skipped.end(),
                    [](const dicom::SkippedFile& f) { return dicom::isDicomPart10(f.path); })) {
-    return openTiffStack(path, options.tiffSpacingMm);
+    return openTiffStack(*folder, options.tiffSpacingMm);
   }
   if (scan.series.empty()) {
     if (fs::is_regular_file(path) && !scan.skipped.empty()) {
@@ -80,11 +61,11 @@ std::unique_ptr<VolumeSource> openVolume(const std::string& path, const OpenOpti
   if (ec || !fs::exists(status)) throw Error(path, "no such file or folder");
   if (fs::is_directory(status)) {
     // Only TIFF files: a TIFF stack. Anything else beside them: DICOM discovery first.
-    const FolderEntries entries = folderEntries(path);
-    if (entries.tiffFiles > 0 && entries.others == 0) {
-      return openTiffStack(path, options.tiffSpacingMm);
+    const TiffFolder folder = listTiffFolder(path);
+    if (!folder.tiffNames.empty() && folder.otherNames.empty()) {
+      return openTiffStack(folder, options.tiffSpacingMm);
     }
-    return openDicom(path, options);
+    return openDicom(path, options, &folder);
   }
   if (!fs::is_regular_file(status)) throw Error(path, "not a regular file or folder");
 

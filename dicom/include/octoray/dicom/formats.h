@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "octoray/dicom/dicom_volume.h"
 #include "octoray/dicom/volume_source.h"
@@ -33,7 +34,19 @@ std::unique_ptr<VolumeSource> openRawVolume(const std::string& path, const RawOp
 std::unique_ptr<VolumeSource> openNrrd(const std::string& path);
 std::unique_ptr<VolumeSource> openMetaImage(const std::string& path);
 std::unique_ptr<VolumeSource> openNifti(const std::string& path);
+// A TIFF stack: a multi-page file, or a folder whose .tif/.tiff files (in natural order:
+// s2 before s10) are its slices. Anything else in the folder is left out with a warning.
 std::unique_ptr<VolumeSource> openTiffStack(const std::string& path, Vec3 spacingMm = {1, 1, 1});
+// A folder's visible entries (hidden ones such as .DS_Store and macOS's ._s001.tif are not
+// counted), split into regular files with a .tif or .tiff extension and everything else, each
+// in natural order. Throws octoray::Error naming the folder when it cannot be listed.
+struct TiffFolder {
+  std::string path;
+  std::vector<std::string> tiffNames, otherNames;
+};
+TiffFolder listTiffFolder(const std::string& folder);
+// The TIFF stack of a folder listed by listTiffFolder, which must hold a TIFF file.
+std::unique_ptr<VolumeSource> openTiffStack(const TiffFolder& folder, Vec3 spacingMm);
 // The "density" float grid, else the first float or double grid, over its active voxels'
 // bounding box (or the index box octoray's export recorded); the grid's transform must be
 // linear and becomes patientFromIndex. Inactive voxels read as the background (vdb.h).
