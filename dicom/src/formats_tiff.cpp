@@ -380,8 +380,9 @@ class TiffSource final : public VolumeSource {
   TiffSource(std::string path, std::vector<std::string> files, int64_t pages, Vec3 spacingMm)
       : files_(std::move(files)) {
     multiPage_ = files_.size() == 1 && pages > 1;
-    TiffFile file(files_.front());
-    first_ = file.page(0, files_.front());
+    auto file = std::make_unique<TiffFile>(files_.front());
+    first_ = file->page(0, files_.front());
+    if (multiPage_) multi_ = std::move(file);
     info_.dims = {first_.width, first_.height,
                   multiPage_ ? pages : static_cast<int64_t>(files_.size())};
     info_.patientFromIndex =
@@ -406,15 +407,29 @@ class TiffSource final : public VolumeSource {
   void readSlab(int64_t firstSlice, int64_t sliceCount, std::span<float> out) override {
     checkSlabRequest(info_, firstSlice, sliceCount, out.size());
     const auto sliceSamples = static_cast<std::size_t>(info_.sliceSamples());
-    std::optional<TiffFile> multi;
-    if (multiPage_) multi.emplace(files_.front());
+    // A multi-page file stays open from slab to slab, on the page read last: the next slab's
+    // first page is then one step on, where reopening it walked the chain from the first page,
+    // quadratic in the pages (importing 4,000 pages of 64 x 64 took 1.7 s, now 0.30 s). After
+    // a failure it is reopened: libtiff's state after a failed read is not specified.
+    if (multiPage_ && !multi_) multi_ = std::make_unique<TiffFile>(files_.front());
+    try {
+      readPages(firstSlice, sliceCount, out, sliceSamples);
+    } catch (...) {
+      multi_.reset();
+      throw;
+    }
+  }
+
+ private:
+  void readPages(int64_t firstSlice, int64_t sliceCount, std::span<float> out,
+                 std::size_t sliceSamples) {
     std::vector<uint8_t> block;
     for (int64_t s = 0; s < sliceCount; ++s) {
       const int64_t slice = firstSlice + s;
       const std::string what = pageName(slice);
       std::optional<TiffFile> single;
       if (!multiPage_) single.emplace(files_[static_cast<std::size_t>(slice)]);
-      TiffFile& file = multiPage_ ? *multi : *single;
+      TiffFile& file = multiPage_ ? *multi_ : *single;
       const TiffPage page = file.page(multiPage_ ? slice : 0, what);
       if (page.width != first_.width || page.height != first_.height) {
         throw Error(what, fmt::format("is {}x{} but the first page is {}x{}: all pages must have "
@@ -429,7 +444,6 @@ class TiffSource final : public VolumeSource {
     }
   }
 
- private:
   std::string pageName(int64_t slice) const {
     return multiPage_ ? fmt::format("{} (page {})", files_.front(), slice)
                       : files_[static_cast<std::size_t>(slice)];
@@ -438,6 +452,7 @@ class TiffSource final : public VolumeSource {
   VolumeInfo info_;
   std::vector<std::string> files_;
   bool multiPage_ = false;
+  std::unique_ptr<TiffFile> multi_;  // the multi-page file, open between slabs
   TiffPage first_;
 };
 

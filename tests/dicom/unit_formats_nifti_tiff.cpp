@@ -346,6 +346,43 @@ TEST(TiffStack, MultiPageFloatFile) {
   expectValues(*source, 1, fractionalRamp);
 }
 
+// A multi-page file stays open between slabs on the page read last. Slabs asked for in any
+// order, again, and after one that failed (the file cut short while open) read the right pages.
+TEST(TiffStack, MultiPageSlabsInAnyOrderAndAfterAFailure) {
+  const auto dir = test::freshTempDir("tiff_multi_order");
+  std::vector<cv::Mat> pages;
+  for (int k = 0; k < 12; ++k) {
+    cv::Mat page(7, 5, CV_32F);
+    for (int j = 0; j < 7; ++j)
+      for (int i = 0; i < 5; ++i) page.at<float>(j, i) = fractionalRamp(i, j, k);
+    pages.push_back(page);
+  }
+  const fs::path file = dir / "stack.tif";
+  ASSERT_TRUE(cv::imwrite(file.string(), pages));
+  auto source = openTiffStack(file.string());
+  ASSERT_EQ(source->info().dims, (std::array<int64_t, 3>{5, 7, 12}));
+  const auto expectSlab = [&](int64_t first, int64_t count) {
+    std::vector<float> slab(static_cast<std::size_t>(35 * count));
+    source->readSlab(first, count, slab);
+    for (int64_t k = 0; k < count; ++k)
+      for (int64_t n = 0; n < 35; ++n) {
+        ASSERT_EQ(slab[static_cast<std::size_t>(35 * k + n)],
+                  fractionalRamp(n % 5, n / 5, first + k))
+            << "slab from " << first << ", page " << first + k << ", sample " << n;
+      }
+  };
+  for (const auto& [first, count] : std::vector<std::pair<int64_t, int64_t>>{
+           {0, 3}, {3, 3}, {9, 3}, {2, 4}, {11, 1}, {0, 1}, {6, 6}, {6, 6}, {5, 1}}) {
+    expectSlab(first, count);
+  }
+  // Cut inside the last page: reading it fails by name, the pages before it still read.
+  fs::resize_file(file, fs::file_size(file) - 60);
+  std::vector<float> last(35);
+  EXPECT_THROW(source->readSlab(11, 1, last), Error);
+  expectSlab(1, 3);
+  expectSlab(4, 1);
+}
+
 // The tags of a grey page of `type` for tiffBytes: size, samples, uncompressed.
 std::vector<TiffEntry> greyPageTags(SampleType type, uint32_t width, uint32_t height) {
   const uint32_t format =
