@@ -5,12 +5,14 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <fmt/format.h>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <fmt/format.h>
+#include <functional>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -226,6 +228,49 @@ TEST_F(DamagedStore, WrongVersionFailsHeaderNamingTheVersion) {
   EXPECT_NE(header.failures[0].message.find("version"), std::string::npos)
       << header.failures[0].message;
   EXPECT_EQ(report.find("geometry")->status, CheckStatus::NotRun);
+}
+
+// Header fields that the checksum covers but no build writes (a forged or mis-written header,
+// resealed): each fails the header check (the geometry check for the affine) by name, before
+// anything reads a brick or renders.
+TEST_F(DamagedStore, ImpossibleHeaderFieldsFailHeaderNamingTheField) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const float nanf = std::numeric_limits<float>::quiet_NaN();
+  struct Case {
+    std::function<void(StoreHeader&)> forge;
+    std::string check, message;
+  };
+  const std::vector<Case> cases = {
+      {[&](StoreHeader& h) { h.valueScale = nan; }, "header", "header: invalid value mapping"},
+      {[](StoreHeader& h) { h.valueScale = 0; }, "header", "header: invalid value mapping"},
+      {[&](StoreHeader& h) { h.patientFromIndex[3] = nan; }, "geometry",
+       "header: non-finite affine"},
+      {[](StoreHeader& h) { h.flags = 0x6; }, "header", "header: unknown flags 0x6"},
+      {[&](StoreHeader& h) { h.gradientScale = nanf; }, "header",
+       "header: gradient scale nan is not a finite non-negative number"},
+      {[](StoreHeader& h) { h.gradientScale = -1; }, "header",
+       "header: gradient scale -1 is not a finite non-negative number"},
+      {[](StoreHeader& h) { h.flags = kStoreHasGradients, h.gradientScale = 0; }, "header",
+       "header: gradient scale 0 is not a positive number"},
+  };
+  ASSERT_EQ(headerOf(bytes_).flags, 0u);
+  ASSERT_EQ(headerOf(bytes_).gradientScale, 0.0f);
+  int n = 0;
+  for (const Case& c : cases) {
+    Bytes bytes = bytes_;
+    StoreHeader h = headerOf(bytes);
+    c.forge(h);
+    h.headerChecksum = XXH3_64bits(&h, offsetof(StoreHeader, headerChecksum));
+    std::memcpy(bytes.data(), &h, sizeof h);
+    const std::string path = copyWith(path_, fmt::format("forged{}.octoray", n++), bytes);
+    const ValidationReport report = validateStore(path);
+    const CheckResult& failed = *report.find(c.check);
+    EXPECT_EQ(failed.status, CheckStatus::Failed) << c.message;
+    ASSERT_EQ(failed.failures.size(), 1u) << c.message;
+    EXPECT_EQ(failed.failures[0].message, c.message);
+    EXPECT_EQ(report.find("checksums")->status, CheckStatus::NotRun) << c.message;
+    EXPECT_THROW(StoreReader{path}, Error) << c.message;
+  }
 }
 
 TEST_F(DamagedStore, SwappedBricksFailBordersOrFilterNotChecksums) {

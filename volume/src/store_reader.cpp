@@ -102,6 +102,17 @@ StoreHeader parseStoreHeader(const void* bytes, std::size_t size, uint64_t fileB
   if (!std::isfinite(h.valueScale) || !std::isfinite(h.valueOffset) || h.valueScale == 0) {
     throw Error(path, "header: invalid value mapping");
   }
+  if ((h.flags & ~uint32_t{kStoreHasGradients}) != 0) {
+    throw Error(path, fmt::format("header: unknown flags 0x{:x}", h.flags));
+  }
+  // The shader scales every gradient norm by it: with gradients it must be a positive number,
+  // without them it is unused and written as 0.
+  const bool gradients = (h.flags & kStoreHasGradients) != 0;
+  if (!std::isfinite(h.gradientScale) || h.gradientScale < 0 ||
+      (gradients && h.gradientScale == 0)) {
+    throw Error(path, fmt::format("header: gradient scale {} is not a {} number", h.gradientScale,
+                                  gradients ? "positive" : "finite non-negative"));
+  }
   return h;
 }
 
