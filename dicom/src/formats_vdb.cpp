@@ -39,6 +39,11 @@ namespace octoray {
 
 namespace {
 
+// A grid as messages name it: grid 'density', or the unnamed grid (a grid need not have a name).
+std::string gridLabel(const std::string& name) {
+  return name.empty() ? "the unnamed grid" : fmt::format("grid '{}'", name);
+}
+
 void initializeOpenVdb() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
@@ -245,9 +250,10 @@ class CheckedVdbReader final : public openvdb::io::Archive {
                                                      d.getBlockPos() <= d.getEndPos());
         if (!(d.getGridPos() > 0 && d.getGridPos() <= d.getEndPos() &&
               d.getEndPos() <= fileBytes && blocksInside)) {
-          throw Error(path, fmt::format("truncated or damaged: grid '{}' is recorded at bytes "
-                                        "{}..{} of a {}-byte file",
-                                        d.gridName(), d.getGridPos(), d.getEndPos(), fileBytes));
+          throw Error(
+              path, fmt::format("truncated or damaged: {} is recorded at bytes "
+                                "{}..{} of a {}-byte file",
+                                gridLabel(d.gridName()), d.getGridPos(), d.getEndPos(), fileBytes));
         }
         entry.descriptor.seekToEnd(in_);
       } else {
@@ -371,8 +377,8 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     if (!now) throw Error(path_, "cannot read the file's size");
     if (inputHasGridOffsets() && now->size < d.getEndPos()) {
       throw Error(path_, fmt::format("the file is now {} bytes, shorter than when it was opened: "
-                                     "grid '{}' ends at byte {}",
-                                     now->size, d.gridName(), d.getEndPos()));
+                                     "{} ends at byte {}",
+                                     now->size, gridLabel(d.gridName()), d.getEndPos()));
     }
     // Where each leaf starts was recorded from the file as it was: a file written since could
     // put other bytes there.
@@ -396,14 +402,14 @@ class CheckedVdbReader final : public openvdb::io::Archive {
     for (std::size_t p = 0; p < entries_.size(); ++p) {
       if (p == n || entries_[p].descriptor.uniqueName() != d.instanceParentName()) continue;
       if (entries_[p].descriptor.isInstance()) {
-        throw openvdb::KeyError(
-            fmt::format("grid '{}' is an instance of '{}', which is an instance itself",
-                        d.gridName(), entries_[p].descriptor.gridName()));
+        throw openvdb::KeyError(fmt::format("{} is an instance of {}, which is an instance itself",
+                                            gridLabel(d.gridName()),
+                                            gridLabel(entries_[p].descriptor.gridName())));
       }
       return p;
     }
     throw openvdb::KeyError(
-        fmt::format("grid '{}' is an instance of a grid the file lacks", d.gridName()));
+        fmt::format("{} is an instance of a grid the file lacks", gridLabel(d.gridName())));
   }
 
   struct Entry {
@@ -430,7 +436,8 @@ std::size_t chooseGrid(const CheckedVdbReader& file, const std::string& path,
   std::size_t candidates = 0;
   for (std::size_t n = 0; n < file.size(); ++n) {
     const openvdb::GridBase& grid = file.typed(n);
-    seen.push_back(fmt::format("'{}' ({})", file.name(n), grid.valueType()));
+    seen.push_back(file.name(n).empty() ? fmt::format("unnamed ({})", grid.valueType())
+                                        : fmt::format("'{}' ({})", file.name(n), grid.valueType()));
     if (!grid.isType<openvdb::FloatGrid>() && !grid.isType<openvdb::DoubleGrid>()) continue;
     ++candidates;
     if (!chosen || (file.name(n) == kVdbGridName && file.name(*chosen) != kVdbGridName)) {
@@ -442,8 +449,8 @@ std::size_t chooseGrid(const CheckedVdbReader& file, const std::string& path,
                                   fmt::join(seen, ", ")));
   }
   if (file.size() > 1) {
-    warnings.push_back(fmt::format("{} grids ({}): read '{}'{}", file.size(),
-                                   fmt::join(seen, ", "), file.name(*chosen),
+    warnings.push_back(fmt::format("{} grids ({}): read {}{}", file.size(), fmt::join(seen, ", "),
+                                   gridLabel(file.name(*chosen)),
                                    candidates > 1 ? ", the other scalar grids are ignored" : ""));
   }
   return *chosen;
@@ -616,7 +623,7 @@ std::unique_ptr<VolumeSource> openGrid(typename GridT::Ptr grid, VolumeInfo info
                                        std::size_t gridIndex, uint64_t wholeGridBytes) {
   const openvdb::CoordBBox active = grid->evalActiveVoxelBoundingBox();
   if (active.empty()) {
-    throw Error(path, fmt::format("grid '{}' has no active voxels", grid->getName()));
+    throw Error(path, fmt::format("{} has no active voxels", gridLabel(grid->getName())));
   }
   openvdb::CoordBBox box = active;
   const auto declaredMin = metaValue<openvdb::Vec3i>(*grid, vdb_meta::kIndexMin);
@@ -716,9 +723,9 @@ std::unique_ptr<VolumeSource> openVdb(const std::string& path, uint64_t wholeGri
     info.modality = metaValue<std::string>(*grid, vdb_meta::kModality).value_or("");
     info.unit = metaValue<std::string>(*grid, vdb_meta::kValueUnit).value_or("");
     if (metaValue<std::string>(*grid, vdb_meta::kCoordinates).value_or("") != "LPS") {
-      info.warnings.push_back(fmt::format(
-          "grid '{}' does not say its world space is patient LPS in mm: taken as such",
-          grid->getName()));
+      info.warnings.push_back(
+          fmt::format("{} does not say its world space is patient LPS in mm: taken as such",
+                      gridLabel(grid->getName())));
     }
     // openGrid holds the only reference, so that it can let the topology go.
     if (auto floats = openvdb::gridPtrCast<openvdb::FloatGrid>(grid)) {

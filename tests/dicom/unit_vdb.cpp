@@ -368,7 +368,7 @@ TEST(VdbFormat, ForeignGridUsesItsActiveBoundingBox) {
   std::string warnings;
   for (const auto& w : info.warnings) warnings += w + "\n";
   EXPECT_NE(warnings.find("'velocity' (vec3s)"), std::string::npos) << warnings;
-  EXPECT_NE(warnings.find("read 'temperature'"), std::string::npos) << warnings;
+  EXPECT_NE(warnings.find("read grid 'temperature'"), std::string::npos) << warnings;
   EXPECT_NE(warnings.find("LPS"), std::string::npos) << warnings;
   expectValues(*source, 3, [](int64_t i, int64_t j, int64_t k) {
     if (i == 0 && j == 0 && k == 0) return 7.0f;
@@ -420,7 +420,13 @@ TEST(VdbFormat, GridsThatAreNotVolumesAreClearErrors) {
   expectErrorMentioning([&] { openVdb((dir / "vectors.vdb").string()); }, "vectors.vdb");
 
   writeWithOpenVdb(dir / "empty.vdb", {openvdb::FloatGrid::create(0.0f)});
-  expectErrorMentioning([&] { openVdb((dir / "empty.vdb").string()); }, "no active voxels");
+  // A grid need not have a name: messages call it the unnamed grid, not grid ''.
+  expectErrorMentioning([&] { openVdb((dir / "empty.vdb").string()); },
+                        "the unnamed grid has no active voxels");
+  vectors->setName("");
+  writeWithOpenVdb(dir / "unnamed.vdb", {vectors});
+  expectErrorMentioning([&] { openVdb((dir / "unnamed.vdb").string()); },
+                        "no float or double grid to read as a volume (found unnamed (vec3s))");
 
   writeWithOpenVdb(dir / "none.vdb", {});
   expectErrorMentioning([&] { openVdb((dir / "none.vdb").string()); }, "no grids");
