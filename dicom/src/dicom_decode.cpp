@@ -1,12 +1,15 @@
 #include "octoray/dicom/dicom_decode.h"
 
+#include <gdcmBoxRegion.h>
 #include <gdcmImage.h>
 #include <gdcmImageReader.h>
+#include <gdcmImageRegionReader.h>
 #include <gdcmPhotometricInterpretation.h>
 #include <gdcmPixelFormat.h>
 #include <gdcmSequenceOfFragments.h>
 #include <gdcmTransferSyntax.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <limits>
@@ -66,21 +69,18 @@ DecodedImage decodeDicomFile(const std::string& path) {
   return image;
 }
 
-DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
-  detail::quietGdcm();
-  gdcm::ImageReader reader;
-  reader.SetFileName(path.c_str());
-  if (!reader.Read()) {
-    throw Error(path, "not a decodable DICOM image (GDCM could not parse the file, or it has "
-                      "no pixel data)");
-  }
+namespace {
+
+// The pixel format of the image `reader` has read (at least its header), checked: the data
+// set's own BitsStored, HighBit and PixelRepresentation, a scalar image, bits a CT can have,
+// and the padding attributes.
+PixelFormat readPixelFormat(const gdcm::ImageReader& reader, const std::string& path) {
   const gdcm::Image& image = reader.GetImage();
   const gdcm::PixelFormat& pf = image.GetPixelFormat();
   const unsigned int* dims = image.GetDimensions();
   const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
 
-  DecodedImage out;
-  PixelFormat& f = out.format;
+  PixelFormat f;
   f.columns = static_cast<int>(dims[0]);
   f.rows = static_cast<int>(dims[1]);
   const unsigned int frames = image.GetNumberOfDimensions() == 3 ? dims[2] : 1;
@@ -164,6 +164,57 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
       f.paddingRangeLimit = *limit;
     }
   }
+  return f;
+}
+
+// Stored values of `samples` samples of the decoded buffer `p` (GDCM's, in host order).
+void convertSamples(const char* p, std::size_t samples, const PixelFormat& f,
+                    const gdcm::TransferSyntax& ts, double* out) {
+  if (f.floatPixels) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out[i] = f.bitsAllocated == 32 ? static_cast<double>(loadLittleEndian<float>(p + 4 * i))
+                                     : loadLittleEndian<double>(p + 8 * i);
+    }
+  } else if (f.bitsAllocated == 1) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out[i] = (static_cast<unsigned char>(p[i / 8]) >> (i % 8)) & 1u;
+    }
+  } else if (f.bitsAllocated == 8) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out[i] = storedValueFromBits(static_cast<unsigned char>(p[i]), f);
+    }
+  } else if (f.bitsAllocated == 16) {
+    for (std::size_t i = 0; i < samples; ++i) {
+      out[i] = storedValueFromBits(loadLittleEndian<uint16_t>(p + 2 * i), f);
+    }
+  } else {
+    // GDCM byte-swaps big-endian pixel data as 16-bit words: 32-bit values come out with
+    // their halves exchanged.
+    const bool halvesSwapped = ts == gdcm::TransferSyntax::ExplicitVRBigEndian;
+    for (std::size_t i = 0; i < samples; ++i) {
+      uint32_t raw = loadLittleEndian<uint32_t>(p + 4 * i);
+      if (halvesSwapped) raw = (raw << 16) | (raw >> 16);
+      out[i] = storedValueFromBits(raw, f);
+    }
+  }
+}
+
+}  // namespace
+
+DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
+  detail::quietGdcm();
+  gdcm::ImageReader reader;
+  reader.SetFileName(path.c_str());
+  if (!reader.Read()) {
+    throw Error(path,
+                "not a decodable DICOM image (GDCM could not parse the file, or it has "
+                "no pixel data)");
+  }
+  const gdcm::Image& image = reader.GetImage();
+  const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
+  DecodedImage out;
+  out.format = readPixelFormat(reader, path);
+  const PixelFormat& f = out.format;
 
   // Sized by untrusted header values: checked against the pixel data's length, without
   // overflow, before anything is allocated. 1-bit samples are packed continuously across
@@ -216,35 +267,70 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   }
 
   out.stored.resize(samples);
-  const char* p = buffer.data();
-  if (f.floatPixels) {
-    for (std::size_t i = 0; i < samples; ++i) {
-      out.stored[i] = f.bitsAllocated == 32
-                          ? static_cast<double>(loadLittleEndian<float>(p + 4 * i))
-                          : loadLittleEndian<double>(p + 8 * i);
-    }
-  } else if (f.bitsAllocated == 1) {
-    for (std::size_t i = 0; i < samples; ++i) {
-      out.stored[i] = (static_cast<unsigned char>(p[i / 8]) >> (i % 8)) & 1u;
-    }
-  } else if (f.bitsAllocated == 8) {
-    for (std::size_t i = 0; i < samples; ++i) {
-      out.stored[i] = storedValueFromBits(static_cast<unsigned char>(p[i]), f);
-    }
-  } else if (f.bitsAllocated == 16) {
-    for (std::size_t i = 0; i < samples; ++i) {
-      out.stored[i] = storedValueFromBits(loadLittleEndian<uint16_t>(p + 2 * i), f);
-    }
-  } else {
-    // GDCM byte-swaps big-endian pixel data as 16-bit words: 32-bit values come out with
-    // their halves exchanged.
-    const bool halvesSwapped = ts == gdcm::TransferSyntax::ExplicitVRBigEndian;
-    for (std::size_t i = 0; i < samples; ++i) {
-      uint32_t raw = loadLittleEndian<uint32_t>(p + 4 * i);
-      if (halvesSwapped) raw = (raw << 16) | (raw >> 16);
-      out.stored[i] = storedValueFromBits(raw, f);
-    }
+  convertSamples(buffer.data(), samples, f, ts, out.stored.data());
+  return out;
+}
+
+DecodedImage detail::decodeVettedDicomFrames(const std::string& path, int firstFrame,
+                                             int frameCount) {
+  detail::quietGdcm();
+  // GDCM's region reader parses the header, then reads (and decodes) only the frames asked
+  // for: native data from their offset, encapsulated data from their own fragments.
+  gdcm::ImageRegionReader reader;
+  reader.SetFileName(path.c_str());
+  if (!reader.ReadInformation()) {
+    throw Error(path,
+                "not a decodable DICOM image (GDCM could not parse the file, or it has "
+                "no pixel data)");
   }
+  DecodedImage out;
+  out.format = readPixelFormat(reader, path);
+  const PixelFormat& f = out.format;
+  if (firstFrame < 0 || firstFrame >= f.frames || frameCount < 1) {
+    throw Error(path, fmt::format("frame {} requested, file has {}", firstFrame + 1, f.frames));
+  }
+  const int count = std::min(frameCount, f.frames - firstFrame);
+  out.firstFrame = firstFrame;
+  const auto fromWholeFile = [&] {
+    DecodedImage whole = decodeVettedDicomFile(path);
+    const std::size_t n = whole.frameSamples();
+    whole.stored.erase(whole.stored.begin() + static_cast<std::ptrdiff_t>(n * (firstFrame + count)),
+                       whole.stored.end());
+    whole.stored.erase(whole.stored.begin(),
+                       whole.stored.begin() + static_cast<std::ptrdiff_t>(n * firstFrame));
+    whole.stored.shrink_to_fit();
+    whole.firstFrame = firstFrame;
+    return whole;
+  };
+  // Whole bytes per sample, and a syntax whose frames GDCM finds alone: native (not deflated,
+  // which must be inflated from its start), RLE, JPEG, JPEG-LS, JPEG 2000. Anything else (1-bit
+  // samples packed across frames, video) is decoded whole and the frames cut out.
+  const gdcm::TransferSyntax ts = reader.GetImage().GetTransferSyntax();
+  const bool nativeData =
+      !ts.IsEncapsulated() && ts != gdcm::TransferSyntax::DeflatedExplicitVRLittleEndian;
+  using TS = gdcm::TransferSyntax;
+  bool frameCodec = false;
+  for (const TS::TSType codec :
+       {TS::RLELossless, TS::JPEGBaselineProcess1, TS::JPEGExtendedProcess2_4,
+        TS::JPEGLosslessProcess14, TS::JPEGLosslessProcess14_1, TS::JPEGLSLossless,
+        TS::JPEGLSNearLossless, TS::JPEG2000Lossless, TS::JPEG2000}) {
+    frameCodec = frameCodec || ts == codec;
+  }
+  if (f.bitsAllocated % 8 != 0 || !(nativeData || frameCodec)) return fromWholeFile();
+
+  const std::size_t samples = out.frameSamples() * static_cast<std::size_t>(count);
+  const std::size_t bytes = samples * static_cast<std::size_t>(f.bitsAllocated / 8);
+  gdcm::BoxRegion box;
+  box.SetDomain(0, static_cast<unsigned>(f.columns - 1), 0, static_cast<unsigned>(f.rows - 1),
+                static_cast<unsigned>(firstFrame), static_cast<unsigned>(firstFrame + count - 1));
+  reader.SetRegion(box);
+  if (reader.ComputeBufferLength() != bytes) return fromWholeFile();
+  std::vector<char> buffer(bytes);
+  // GDCM declines frames it cannot find alone (encapsulated data without exactly one fragment
+  // per frame, say): the whole file is decoded then, and says what is wrong with it, if anything.
+  if (!reader.ReadIntoBuffer(buffer.data(), buffer.size())) return fromWholeFile();
+  out.stored.resize(samples);
+  convertSamples(buffer.data(), samples, f, ts, out.stored.data());
   return out;
 }
 

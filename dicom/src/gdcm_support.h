@@ -46,6 +46,10 @@ std::size_t pixelValueOffset(const std::string& path);
 
 // decodeDicomFile without vetting, for files scanDicom has already vetted.
 DecodedImage decodeVettedDicomFile(const std::string& path);
+// Frames [firstFrame, firstFrame + frameCount) of a vetted multi-frame file (fewer where the file
+// ends first), read without the others where GDCM can find them alone, so that the memory a
+// multi-frame object takes is that of the frames asked for, not of the whole file.
+DecodedImage decodeVettedDicomFrames(const std::string& path, int firstFrame, int frameCount);
 
 // A US (or US/SS) element (GDCM hands values over in host byte order); nullopt if absent.
 std::optional<int> unsignedShort(const gdcm::File& file, const gdcm::DataSet& ds,

@@ -40,6 +40,9 @@ int main(int argc, char** argv) {
   app.add_flag("--variable-gaps", variableGaps,
                "every third gap is 1.5 times the slice spacing (the reader resamples)");
   app.add_flag("--with-localizer", withLocalizer, "also write a coronal localizer image");
+  bool multiFrame = false;
+  app.add_flag("--multi-frame", multiFrame,
+               "one Enhanced CT object holding every slice as a frame, not one file per slice");
   std::string patientName = "OCTORAY^SYNTHETIC", patientId;
   app.add_option("--patient-name", patientName, "PatientName (DICOM person name, e.g. DOE^JANE)")
       ->capture_default_str();
@@ -70,6 +73,7 @@ int main(int argc, char** argv) {
     spec.patientName = patientName;
     spec.patientId = patientId;
     spec.sliceCount = slices;
+    if (multiFrame) spec.layout = SyntheticLayout::EnhancedMultiFrame;
     if (variableGaps) {
       // Gaps of 1, 1, 1.5 times the spacing, repeating: not an affine grid.
       double distanceMm = 0;
@@ -85,8 +89,9 @@ int main(int argc, char** argv) {
 
     const SyntheticSeries series = writeSyntheticSeries(outDir, spec);
     const std::vector<SyntheticImage> written = series.slices();
-    fmt::print("wrote {} CT slices ({} x {} pixels, {} x {} mm, slice spacing {} mm{}{}) to {}\n",
-               written.size(), spec.columns, spec.rows, spec.columnSpacingMm, spec.rowSpacingMm,
+    fmt::print("wrote {} CT slices{} ({} x {} pixels, {} x {} mm, slice spacing {} mm{}{}) to {}\n",
+               written.size(), multiFrame ? " as frames of one Enhanced CT object" : "",
+               spec.columns, spec.rows, spec.columnSpacingMm, spec.rowSpacingMm,
                spec.sliceSpacingMm, variableGaps ? ", variable gaps" : "",
                tiltDegrees != 0 ? fmt::format(", gantry tilt {} deg", tiltDegrees) : "", outDir);
     fmt::print("  study  {}\n  series {}\n", series.studyUid, series.seriesUid);

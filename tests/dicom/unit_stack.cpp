@@ -440,6 +440,53 @@ TEST(StackSynthetic, EnhancedMultiFrameEqualsSingleFiles) {
   expectSameVolume(enhanced, load(singleDir));
 }
 
+// A multi-frame object is decoded a run of frames at a time (here 3 frames a run: 13 frames
+// make five runs, the last short), in every transfer syntax, frames with the slices or against
+// them: the same volume as the single-frame files, and the same slices read one at a time
+// from the last to the first.
+TEST(StackSynthetic, MultiFrameObjectsAreReadARunOfFramesAtATime) {
+  SyntheticSeriesSpec spec;
+  spec.columns = 20;
+  spec.rows = 12;
+  spec.sliceCount = 13;
+  const auto referenceDir = test::freshTempDir("runs_reference");
+  writeSyntheticSeries(referenceDir, spec);
+  const LoadedStack reference = load(referenceDir);
+  StackOptions options;
+  options.frameRunBytes = 3 * 20 * 12 * sizeof(double);
+  spec.layout = SyntheticLayout::EnhancedMultiFrame;
+  for (SyntheticTransferSyntax syntax :
+       {SyntheticTransferSyntax::ExplicitVRLittleEndian,
+        SyntheticTransferSyntax::ImplicitVRLittleEndian,
+        SyntheticTransferSyntax::ExplicitVRBigEndian, SyntheticTransferSyntax::RLELossless,
+        SyntheticTransferSyntax::JPEGLossless, SyntheticTransferSyntax::JPEGLSLossless,
+        SyntheticTransferSyntax::JPEG2000Lossless}) {
+    for (bool reversed : {false, true}) {
+      SCOPED_TRACE(std::string(transferSyntaxUid(syntax)) + (reversed ? " reversed" : ""));
+      spec.transferSyntax = syntax;
+      spec.reverseFileOrder = reversed;
+      const auto dir = test::freshTempDir(std::string("runs") + transferSyntaxUid(syntax) +
+                                          (reversed ? "r" : ""));
+      const SyntheticSeries written = writeSyntheticSeries(dir, spec);
+      ASSERT_EQ(written.files.size(), 1u);
+      const LoadedStack loaded = load(dir, options);
+      EXPECT_TRUE(loaded.series.multiFrame);
+      checkWrittenPixels(spec, written, loaded);
+      expectSameVolume(loaded, reference);
+      auto source = openDicomSeries(loaded.series, options);
+      const auto sliceSamples = static_cast<std::size_t>(loaded.info.sliceSamples());
+      std::vector<float> slice(sliceSamples);
+      for (int64_t k = loaded.info.dims[2] - 1; k >= 0; --k) {
+        source->readSlab(k, 1, slice);
+        ASSERT_TRUE(
+            std::equal(slice.begin(), slice.end(),
+                       loaded.values.begin() + static_cast<std::ptrdiff_t>(k * sliceSamples)))
+            << "slice " << k;
+      }
+    }
+  }
+}
+
 TEST(StackSynthetic, LocalizerAndSecondaryCaptureAreNotTheDefault) {
   SyntheticSeriesSpec spec;
   spec.withLocalizer = true;

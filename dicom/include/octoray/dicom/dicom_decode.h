@@ -32,6 +32,9 @@ struct DecodedImage {
   // Stored values after masking to BitsStored and sign extension, frame-major, then row-major.
   // Doubles hold every integer storage type (up to 32 bits) and float pixel data exactly.
   std::vector<double> stored;
+  // The frames `stored` holds: from firstFrame on, as many as it holds (every frame from 0 for
+  // decodeDicomFile; format.frames is the file's NumberOfFrames either way).
+  int firstFrame = 0;
 
   std::size_t frameSamples() const {
     return static_cast<std::size_t>(format.rows) * static_cast<std::size_t>(format.columns);

@@ -4,6 +4,7 @@
 // shear in the affine, uneven slice spacing resampled to a uniform spacing, stored values
 // mapped to physical units. The result is a VolumeSource that decodes a slab at a time.
 
+#include <cstddef>
 #include <memory>
 #include <string>
 #include <vector>
@@ -17,6 +18,9 @@ struct StackOptions {
   // Output spacing when slices must be resampled; 0 = smallest gap. A spacing that would make
   // more than max(16 x images, 4096) slices is refused (resolveStack throws).
   double sliceSpacingMm = 0;
+  // A multi-frame object is decoded a run of frames at a time, each run at most this many bytes
+  // of decoded values (at least one frame); a run per thread is kept while its frames are read.
+  std::size_t frameRunBytes = std::size_t{8} << 20;
 };
 
 // The resolved geometry of a stack of frames.
