@@ -452,7 +452,9 @@ class TiffSource final : public VolumeSource {
   VolumeInfo info_;
   std::vector<std::string> files_;
   bool multiPage_ = false;
-  std::unique_ptr<TiffFile> multi_;  // the multi-page file, open between slabs
+  // The multi-page file, open from the first slab to the source's end: a file replaced on disk
+  // meanwhile is still read from the copy that was opened.
+  std::unique_ptr<TiffFile> multi_;
   TiffPage first_;
 };
 
@@ -462,10 +464,14 @@ TiffFolder listTiffFolder(const std::string& folder) {
   namespace fs = std::filesystem;
   std::error_code ec;
   TiffFolder listed{folder, {}, {}};
-  for (const auto& entry : fs::directory_iterator(folder, ec)) {
-    const std::string name = entry.path().filename().string();
+  fs::directory_iterator it(folder, ec);
+  for (; !ec && it != fs::directory_iterator(); it.increment(ec)) {
+    const std::string name = it->path().filename().string();
     if (name.starts_with(".")) continue;  // .DS_Store, macOS's ._s001.tif
-    if (entry.is_regular_file(ec) && hasTiffExtension(entry.path())) {
+    // An entry that cannot be looked at (a dangling link) is another entry, not a failure to
+    // list the folder: DICOM discovery skips it too.
+    std::error_code entryError;
+    if (it->is_regular_file(entryError) && hasTiffExtension(it->path())) {
       listed.tiffNames.push_back(name);
     } else {
       listed.otherNames.push_back(name);

@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -241,6 +242,30 @@ TEST(ToolImport, StoreJsonSummary) {
   EXPECT_EQ(j["sampleFormat"], "uint16");
 }
 
+// AddressSanitizer's quarantine keeps freed memory resident, which a peak-memory test would
+// count as held: the tools it starts run without it while this lives.
+class WithoutAsanQuarantine {
+ public:
+  WithoutAsanQuarantine() {
+    const char* options = std::getenv("ASAN_OPTIONS");
+    if (options) saved_ = options;
+    const std::string separator = saved_ && !saved_->empty() ? ":" : "";
+    ::setenv("ASAN_OPTIONS", (saved_.value_or("") + separator + "quarantine_size_mb=0").c_str(), 1);
+  }
+  ~WithoutAsanQuarantine() {
+    if (saved_) {
+      ::setenv("ASAN_OPTIONS", saved_->c_str(), 1);
+    } else {
+      ::unsetenv("ASAN_OPTIONS");
+    }
+  }
+  WithoutAsanQuarantine(const WithoutAsanQuarantine&) = delete;
+  WithoutAsanQuarantine& operator=(const WithoutAsanQuarantine&) = delete;
+
+ private:
+  std::optional<std::string> saved_;
+};
+
 // The VDB export holds neither the grid's values nor its topology: 16 times the slices raise
 // the tool's peak memory by far less than the values they add (an export that held the whole
 // grid rose by 31.8 MiB here, against 2.0 MiB now). Every sample is active and no two neighbours are equal, so
@@ -248,10 +273,7 @@ TEST(ToolImport, StoreJsonSummary) {
 // resident, which would count here as held, so the tool runs without it.
 TEST(ToolImportVdb, PeakMemoryGrowsWithTheTopologyNotTheValues) {
   const fs::path dir = test::freshTempDir("vdb_memory");
-  const char* asan = std::getenv("ASAN_OPTIONS");
-  const std::string saved = asan ? asan : "";
-  ::setenv("ASAN_OPTIONS", (saved + (saved.empty() ? "" : ":") + "quarantine_size_mb=0").c_str(),
-           1);
+  const WithoutAsanQuarantine noQuarantine;
   constexpr int64_t kSide = 256;
   auto peakMiB = [&](int64_t slices) {
     const std::string name = fmt::format("v{}", slices);
@@ -275,11 +297,6 @@ TEST(ToolImportVdb, PeakMemoryGrowsWithTheTopologyNotTheValues) {
     return j["peakRssMiB"].get<double>();
   };
   const double thin = peakMiB(8), thick = peakMiB(128);
-  if (asan) {
-    ::setenv("ASAN_OPTIONS", saved.c_str(), 1);
-  } else {
-    ::unsetenv("ASAN_OPTIONS");
-  }
   const double addedValuesMiB = double(kSide * kSide * 120) * sizeof(float) / (1 << 20);  // 30
   EXPECT_LT(thick - thin, 0.35 * addedValuesMiB)
       << "peak RSS " << thin << " MiB for 8 slices, " << thick << " MiB for 128";
@@ -290,10 +307,7 @@ TEST(ToolImportVdb, PeakMemoryGrowsWithTheTopologyNotTheValues) {
 // 256 x 256 rose it by 175 MiB (their doubles, GDCM's copy of the file and its decoded
 // buffer); by runs, 34 MiB. AddressSanitizer's quarantine is off, as above.
 TEST(ToolImport, MultiFramePeakMemoryGrowsWithARunNotTheObject) {
-  const char* asan = std::getenv("ASAN_OPTIONS");
-  const std::string saved = asan ? asan : "";
-  ::setenv("ASAN_OPTIONS", (saved + (saved.empty() ? "" : ":") + "quarantine_size_mb=0").c_str(),
-           1);
+  const WithoutAsanQuarantine noQuarantine;
   auto peakMiB = [&](int frames) {
     const fs::path dir = test::freshTempDir(fmt::format("frames{}", frames));
     const fs::path series = dir / "series";
@@ -307,11 +321,6 @@ TEST(ToolImport, MultiFramePeakMemoryGrowsWithARunNotTheObject) {
     return j["peakRssMiB"].get<double>();
   };
   const double thin = peakMiB(16), thick = peakMiB(256);
-  if (asan) {
-    ::setenv("ASAN_OPTIONS", saved.c_str(), 1);
-  } else {
-    ::unsetenv("ASAN_OPTIONS");
-  }
   const double addedValuesMiB = 240.0 * 256 * 256 * sizeof(double) / (1 << 20);  // 120
   EXPECT_LT(thick - thin, 0.5 * addedValuesMiB)
       << "peak RSS " << thin << " MiB for 16 frames, " << thick << " MiB for 256";

@@ -318,15 +318,30 @@ TEST(TiffStack, FolderWithOtherEntriesIsTheStackWithAWarning) {
   writeFile(dir / "notes.txt", "acquired on the micro-CT, 20 um\n");
   fs::create_directories(dir / "thumbnails");
   writeFile(dir / ".DS_Store", "hidden");
+  fs::create_symlink(dir / "moved.tif", dir / "s9.tif");  // dangling: another entry
   auto source = openVolume(dir.string());
   EXPECT_EQ(source->info().format, "tiff");
   EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{8, 6, 4}));
   ASSERT_EQ(source->info().warnings.size(), 1u);
   EXPECT_EQ(source->info().warnings[0],
-            "left out 2 entries that are not a .tif or .tiff file: notes.txt, thumbnails");
+            "left out 3 entries that are not a .tif or .tiff file: notes.txt, s9.tif, thumbnails");
   expectValues(*source, 4, [](int64_t i, int64_t j, int64_t k) {
     return static_cast<float>(typedValue<uint16_t>(i, j, k));
   });
+}
+
+// An entry that cannot be looked at (a dangling link) does not stop the folder being listed:
+// a folder holding only one says what DICOM discovery found, not "cannot list the folder".
+TEST(TiffStack, DanglingLinkIsAnEntryNotAListingFailure) {
+  const auto dir = test::freshTempDir("tiff_dangling");
+  fs::create_symlink(dir / "gone.dcm", dir / "d");
+  try {
+    openVolume(dir.string());
+    ADD_FAILURE() << "a folder of one dangling link opened";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              dir.string() + ": no DICOM image series found (0 files examined)");
+  }
 }
 
 TEST(TiffStack, MultiPageFloatFile) {
@@ -346,8 +361,9 @@ TEST(TiffStack, MultiPageFloatFile) {
   expectValues(*source, 1, fractionalRamp);
 }
 
-// A multi-page file stays open between slabs on the page read last. Slabs asked for in any
-// order, again, and after one that failed (the file cut short while open) read the right pages.
+// A multi-page file stays open between slabs on the page read last: slabs asked for in any
+// order and again read the right pages, and so do they after a slab that failed (the file cut
+// short while open) and after the file is unlinked.
 TEST(TiffStack, MultiPageSlabsInAnyOrderAndAfterAFailure) {
   const auto dir = test::freshTempDir("tiff_multi_order");
   std::vector<cv::Mat> pages;
@@ -375,12 +391,17 @@ TEST(TiffStack, MultiPageSlabsInAnyOrderAndAfterAFailure) {
            {0, 3}, {3, 3}, {9, 3}, {2, 4}, {11, 1}, {0, 1}, {6, 6}, {6, 6}, {5, 1}}) {
     expectSlab(first, count);
   }
-  // Cut inside the last page: reading it fails by name, the pages before it still read.
+  // Cut inside the last page: reading it fails by name, the pages before it still read (the
+  // file is opened again after a failure).
   fs::resize_file(file, fs::file_size(file) - 60);
   std::vector<float> last(35);
   EXPECT_THROW(source->readSlab(11, 1, last), Error);
   expectSlab(1, 3);
   expectSlab(4, 1);
+  // Unlinked: the file open since that slab still reads (it was reopened for every slab).
+  fs::remove(file);
+  expectSlab(8, 3);
+  expectSlab(0, 2);
 }
 
 // The tags of a grey page of `type` for tiffBytes: size, samples, uncompressed.
