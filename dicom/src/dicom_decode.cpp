@@ -29,6 +29,9 @@ T loadLittleEndian(const char* p) {
   return v;
 }
 
+constexpr const char* kNotDecodable =
+    "not a decodable DICOM image (GDCM could not parse the file, or it has no pixel data)";
+
 const char* syntaxName(const gdcm::TransferSyntax& ts) {
   const char* s = gdcm::TransferSyntax::GetTSString(ts);
   return s ? s : "unknown transfer syntax";
@@ -206,9 +209,7 @@ DecodedImage detail::decodeVettedDicomFile(const std::string& path) {
   gdcm::ImageReader reader;
   reader.SetFileName(path.c_str());
   if (!reader.Read()) {
-    throw Error(path,
-                "not a decodable DICOM image (GDCM could not parse the file, or it has "
-                "no pixel data)");
+    throw Error(path, kNotDecodable);
   }
   const gdcm::Image& image = reader.GetImage();
   const gdcm::TransferSyntax& ts = image.GetTransferSyntax();
@@ -279,9 +280,7 @@ DecodedImage detail::decodeVettedDicomFrames(const std::string& path, int firstF
   gdcm::ImageRegionReader reader;
   reader.SetFileName(path.c_str());
   if (!reader.ReadInformation()) {
-    throw Error(path,
-                "not a decodable DICOM image (GDCM could not parse the file, or it has "
-                "no pixel data)");
+    throw Error(path, kNotDecodable);
   }
   DecodedImage out;
   out.format = readPixelFormat(reader, path);

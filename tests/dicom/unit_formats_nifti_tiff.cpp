@@ -344,16 +344,21 @@ TEST(TiffStack, DanglingLinkIsAnEntryNotAListingFailure) {
   }
 }
 
-TEST(TiffStack, MultiPageFloatFile) {
-  const auto dir = test::freshTempDir("tiff_multi");
+// `count` float pages of `columns` x `rows` holding fractionalRamp, for a multi-page TIFF.
+std::vector<cv::Mat> fractionalRampPages(int columns, int rows, int count) {
   std::vector<cv::Mat> pages;
-  for (int k = 0; k < 6; ++k) {
-    cv::Mat page(9, 10, CV_32F);
-    for (int j = 0; j < 9; ++j)
-      for (int i = 0; i < 10; ++i) page.at<float>(j, i) = fractionalRamp(i, j, k);
+  for (int k = 0; k < count; ++k) {
+    cv::Mat page(rows, columns, CV_32F);
+    for (int j = 0; j < rows; ++j)
+      for (int i = 0; i < columns; ++i) page.at<float>(j, i) = fractionalRamp(i, j, k);
     pages.push_back(page);
   }
-  ASSERT_TRUE(cv::imwrite((dir / "stack.tiff").string(), pages));
+  return pages;
+}
+
+TEST(TiffStack, MultiPageFloatFile) {
+  const auto dir = test::freshTempDir("tiff_multi");
+  ASSERT_TRUE(cv::imwrite((dir / "stack.tiff").string(), fractionalRampPages(10, 9, 6)));
   auto source = openTiffStack((dir / "stack.tiff").string());
   EXPECT_EQ(source->info().dims, (std::array<int64_t, 3>{10, 9, 6}));
   EXPECT_FALSE(source->info().integerValues);
@@ -366,15 +371,8 @@ TEST(TiffStack, MultiPageFloatFile) {
 // short while open) and after the file is unlinked.
 TEST(TiffStack, MultiPageSlabsInAnyOrderAndAfterAFailure) {
   const auto dir = test::freshTempDir("tiff_multi_order");
-  std::vector<cv::Mat> pages;
-  for (int k = 0; k < 12; ++k) {
-    cv::Mat page(7, 5, CV_32F);
-    for (int j = 0; j < 7; ++j)
-      for (int i = 0; i < 5; ++i) page.at<float>(j, i) = fractionalRamp(i, j, k);
-    pages.push_back(page);
-  }
   const fs::path file = dir / "stack.tif";
-  ASSERT_TRUE(cv::imwrite(file.string(), pages));
+  ASSERT_TRUE(cv::imwrite(file.string(), fractionalRampPages(5, 7, 12)));
   auto source = openTiffStack(file.string());
   ASSERT_EQ(source->info().dims, (std::array<int64_t, 3>{5, 7, 12}));
   const auto expectSlab = [&](int64_t first, int64_t count) {
